@@ -1,0 +1,1 @@
+// guidance component: sources arrive with its issue.

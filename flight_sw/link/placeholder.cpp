@@ -1,0 +1,1 @@
+// link component: sources arrive with its issue.
