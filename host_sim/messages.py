@@ -100,7 +100,7 @@ class Telemetry:
     """Per-phase solve-time log of the flight software (sent periodically and at the end)."""
 
     TYPE = 4
-    BODY = struct.Struct('<3I3I3d3d3II3Q')
+    BODY = struct.Struct('<3I3I3d3d3II3QQQII')
     steps: tuple[int, ...] = field(default_factory=lambda: (0,) * 3)  # solves per phase (rendezvous, approach, docking)
     overruns: tuple[int, ...] = field(default_factory=lambda: (0,) * 3)  # deadline overruns per phase
     mean_solve_us: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 3)  # mean solve time per phase [us]
@@ -108,6 +108,10 @@ class Telemetry:
     max_step: tuple[int, ...] = field(default_factory=lambda: (0,) * 3)  # step k that hit the max, per phase
     reserved: int = 0  # 0
     total_instructions: tuple[int, ...] = field(default_factory=lambda: (0,) * 3)  # sum of solve instructions per phase (0 when unknown)
+    peak_heap_bytes: int = 0  # peak heap in use by the flight software (malloc statistics)
+    max_rss_kb: int = 0  # peak resident set of the process (under qemu-user: of QEMU itself)
+    nav_rejected: int = 0  # nav payloads rejected as malformed so far
+    nav_duplicates: int = 0  # nav messages answered again from the cached cmd (resends)
 
 
 @dataclass
@@ -129,7 +133,7 @@ _LAYOUT = {
     Hello: (('arch', 'str', 16), ('cpu_model', 'str', 32), ('compiler', 'str', 48), ('build', 'str', 48), ('solver_mode', 'int', 1), ('reserved', 'int', 1), ('solver_max_iter', 'int', 1), ('solver_tol', 'f64', 1), ('horizon', 'int', 3), ('reserved2', 'int', 1), ('period_s', 'f64', 3), ('deadline_fraction', 'f64', 1), ('pid', 'int', 1), ('session', 'int', 1),),
     Nav: (('step', 'int', 1), ('flags', 'int', 1), ('t_s', 'f64', 1), ('position_lvlh_m', 'f64', 3), ('velocity_lvlh_mps', 'f64', 3), ('q_lvlh_body', 'f64', 4), ('omega_body_rad_s', 'f64', 3),),
     Cmd: (('step', 'int', 1), ('phase', 'int', 1), ('guidance_status', 'int', 1), ('solver_status', 'int', 1), ('overrun', 'int', 1), ('period_s', 'f64', 1), ('dv_cmd_lvlh_mps', 'f64', 3), ('dv_alloc_lvlh_mps', 'f64', 3), ('pulse_s', 'f64', 6), ('solve_time_us', 'f64', 1), ('step_time_us', 'f64', 1), ('instructions', 'int', 1), ('iterations', 'int', 1), ('reserved', 'int', 1), ('overruns', 'int', 1), ('primal_residual', 'f64', 1), ('dual_residual', 'f64', 1), ('objective', 'f64', 1),),
-    Telemetry: (('steps', 'int', 3), ('overruns', 'int', 3), ('mean_solve_us', 'f64', 3), ('max_solve_us', 'f64', 3), ('max_step', 'int', 3), ('reserved', 'int', 1), ('total_instructions', 'int', 3),),
+    Telemetry: (('steps', 'int', 3), ('overruns', 'int', 3), ('mean_solve_us', 'f64', 3), ('max_solve_us', 'f64', 3), ('max_step', 'int', 3), ('reserved', 'int', 1), ('total_instructions', 'int', 3), ('peak_heap_bytes', 'int', 1), ('max_rss_kb', 'int', 1), ('nav_rejected', 'int', 1), ('nav_duplicates', 'int', 1),),
     Bye: (('reason', 'int', 1), ('reserved', 'int', 3), ('last_step', 'int', 1), ('text', 'str', 64),),
 }
 

@@ -361,7 +361,7 @@ inline Error decode(const uint8_t* data, std::size_t n, Cmd& m) {
 // Per-phase solve-time log of the flight software (sent periodically and at the end).
 struct Telemetry {
   static constexpr Type kType = Type::Telemetry;
-  static constexpr std::size_t kBodySize = 112;
+  static constexpr std::size_t kBodySize = 136;
   static constexpr std::size_t kSize = kHeaderSize + kBodySize;
   std::array<uint32_t, 3> steps{};  // solves per phase (rendezvous, approach, docking)
   std::array<uint32_t, 3> overruns{};  // deadline overruns per phase
@@ -370,6 +370,10 @@ struct Telemetry {
   std::array<uint32_t, 3> max_step{};  // step k that hit the max, per phase
   uint32_t reserved = 0;  // 0
   std::array<uint64_t, 3> total_instructions{};  // sum of solve instructions per phase (0 when unknown)
+  uint64_t peak_heap_bytes = 0;  // peak heap in use by the flight software (malloc statistics)
+  uint64_t max_rss_kb = 0;  // peak resident set of the process (under qemu-user: of QEMU itself)
+  uint32_t nav_rejected = 0;  // nav payloads rejected as malformed so far
+  uint32_t nav_duplicates = 0;  // nav messages answered again from the cached cmd (resends)
 };
 
 // Writes Telemetry::kSize bytes; returns the size, or 0 and `err` when it cannot.
@@ -389,6 +393,10 @@ inline std::size_t encode(const Telemetry& m, uint8_t* out, std::size_t cap, Err
   for (auto v : m.max_step) wire::put<uint32_t>(p, v);
   wire::put<uint32_t>(p, m.reserved);
   for (auto v : m.total_instructions) wire::put<uint64_t>(p, v);
+  wire::put<uint64_t>(p, m.peak_heap_bytes);
+  wire::put<uint64_t>(p, m.max_rss_kb);
+  wire::put<uint32_t>(p, m.nav_rejected);
+  wire::put<uint32_t>(p, m.nav_duplicates);
   return static_cast<std::size_t>(p - out);
 }
 
@@ -409,6 +417,10 @@ inline Error decode(const uint8_t* data, std::size_t n, Telemetry& m) {
   for (auto& v : r.max_step) v = wire::get<uint32_t>(p);
   r.reserved = wire::get<uint32_t>(p);
   for (auto& v : r.total_instructions) v = wire::get<uint64_t>(p);
+  r.peak_heap_bytes = wire::get<uint64_t>(p);
+  r.max_rss_kb = wire::get<uint64_t>(p);
+  r.nav_rejected = wire::get<uint32_t>(p);
+  r.nav_duplicates = wire::get<uint32_t>(p);
   for (double v : r.mean_solve_us) if (!std::isfinite(v)) return Error::NonFinite;
   for (double v : r.max_solve_us) if (!std::isfinite(v)) return Error::NonFinite;
   m = r;

@@ -109,6 +109,10 @@ TEST_CASE("telemetry and bye golden vectors") {
   t.max_solve_us = {90.0, 60.5, 20.75};
   t.max_step = {12, 70, 100};
   t.total_instructions = {1000000, 2000000, 3000000};
+  t.peak_heap_bytes = 524288;
+  t.max_rss_kb = 4096;
+  t.nav_rejected = 2;
+  t.nav_duplicates = 5;
   CHECK(encoded(t) == golden("telemetry"));
   Bye b;
   b.reason = 1;
