@@ -1,0 +1,255 @@
+"""Scenarios: initial conditions and vehicle/environment parameters, stored as flat TOML files in
+`host_sim/scenarios/` (installed with the package) and loaded with `load(name_or_path)`.
+
+Defaults (used for any key a TOML file leaves out) follow the dissertation: two 14 kg 6U CubeSats,
+chaser Cd 1.4, target Cd 2.0, six 0.5 N thrusters with a 10 ms minimum impulse bit, Table 5.1
+thrust error, sigma 5 cm / 1 mm/s navigation noise, 200 min timeout. Choices the dissertation
+leaves open, and ours:
+- orbit: circular, 500 km altitude, 51.6 deg inclination (an ISS-like LEO), RAAN 0, argument of
+  latitude 0 at t = 0;
+- drag area 0.0366 m^2 for both vehicles: the 10 x 36.6 cm face of a 6U (10 x 22.6 x 36.6 cm)
+  facing the flow, attitude held fixed in LVLH.
+
+`random_scenario(seed)` draws the dissertation's Monte Carlo initial states (section 5.4).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import constants as k
+from .cw import drift_free_velocity
+from .noise import GaussMarkovParams, SensorParams
+from .thrusters import ThrusterParams
+
+
+class ScenarioError(ValueError):
+    """A scenario file or value is invalid; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class OrbitConfig:
+    """Target orbit: circular, `altitude_m` above the sphere of radius constants.R_EARTH_M."""
+
+    altitude_m: float = 500e3
+    inclination_deg: float = 51.6
+    raan_deg: float = 0.0
+    argument_of_latitude_deg: float = 0.0
+
+    @property
+    def semi_major_axis_m(self) -> float:
+        return k.R_EARTH_M + self.altitude_m
+
+    @property
+    def mean_motion_rad_s(self) -> float:
+        """Two-body mean motion sqrt(mu / a^3) [rad/s]."""
+        return math.sqrt(k.MU_EARTH_M3_S2 / self.semi_major_axis_m**3)
+
+    @property
+    def period_s(self) -> float:
+        return 2.0 * math.pi / self.mean_motion_rad_s
+
+
+@dataclass(frozen=True)
+class ChaserConfig:
+    """Chaser initial relative state in the target LVLH frame and its mass/drag properties."""
+
+    position_lvlh_m: tuple[float, float, float] = (140.0, -1580.0, 60.0)
+    velocity_lvlh_mps: tuple[float, float, float] = (-0.90, -0.32, 0.0)
+    mass_kg: float = 14.0
+    drag_coefficient: float = 1.4
+    drag_area_m2: float = 0.0366
+
+    @property
+    def ballistic_m2_kg(self) -> float:
+        """Cd * A / m [m^2/kg]."""
+        return self.drag_coefficient * self.drag_area_m2 / self.mass_kg
+
+
+@dataclass(frozen=True)
+class TargetConfig:
+    """Target mass/drag properties and attitude (see host_sim.attitude)."""
+
+    mass_kg: float = 14.0
+    drag_coefficient: float = 2.0
+    drag_area_m2: float = 0.0366
+    initial_angle_deg: float = -90.0
+    spin_rate_deg_s: float = 0.0
+    docking_port_body_m: tuple[float, float, float] = (0.5, 0.0, 0.0)
+
+    @property
+    def ballistic_m2_kg(self) -> float:
+        return self.drag_coefficient * self.drag_area_m2 / self.mass_kg
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str = ""
+    timeout_s: float = 12000.0
+    orbit: OrbitConfig = field(default_factory=OrbitConfig)
+    chaser: ChaserConfig = field(default_factory=ChaserConfig)
+    target: TargetConfig = field(default_factory=TargetConfig)
+    thrusters: ThrusterParams = field(default_factory=ThrusterParams)
+    thrust_error: GaussMarkovParams = field(default_factory=GaussMarkovParams)
+    sensors: SensorParams = field(default_factory=SensorParams)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (JSON-ready) of every parameter, for run records."""
+        return _plain(dataclasses.asdict(self))
+
+    def replace(self, **changes) -> "Scenario":
+        """Copy with top-level fields replaced (e.g. chaser=dataclasses.replace(s.chaser, ...))."""
+        return dataclasses.replace(self, **changes)
+
+
+_SECTIONS = {
+    "orbit": OrbitConfig,
+    "chaser": ChaserConfig,
+    "target": TargetConfig,
+    "thrusters": ThrusterParams,
+    "thrust_error": GaussMarkovParams,
+    "sensors": SensorParams,
+}
+_TOP_LEVEL = {"name", "description", "timeout_s"}
+
+
+def _plain(obj):
+    if isinstance(obj, dict):
+        return {key: _plain(v) for key, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def available() -> list[str]:
+    """Names of the scenarios shipped with the package."""
+    folder = resources.files("host_sim") / "scenarios"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load(name_or_path: str | Path) -> Scenario:
+    """Load a scenario by package name (e.g. "case1_vbar") or from a TOML file path."""
+    text_source = str(name_or_path)
+    path = Path(text_source)
+    if path.suffix == ".toml" or path.exists() or "/" in text_source:
+        if not path.is_file():
+            raise ScenarioError(f"scenario file {path} does not exist")
+        return from_toml(path.read_text(encoding="utf-8"), source=str(path))
+    resource = resources.files("host_sim") / "scenarios" / f"{text_source}.toml"
+    if not resource.is_file():
+        raise ScenarioError(f"unknown scenario {text_source!r}; available: {', '.join(available())} "
+                            "(or give a path to a .toml file)")
+    return from_toml(resource.read_text(encoding="utf-8"), source=f"host_sim/scenarios/{text_source}.toml")
+
+
+def from_toml(text: str, source: str = "<string>") -> Scenario:
+    """Parse scenario TOML text (see the files in host_sim/scenarios/ for the shape)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{source}: not valid TOML: {exc}") from exc
+    return from_dict(data, source=source)
+
+
+def from_dict(data: dict[str, Any], source: str = "<dict>") -> Scenario:
+    """Build and validate a Scenario from the dict shape of the TOML files."""
+    unknown = set(data) - _TOP_LEVEL - set(_SECTIONS)
+    if unknown:
+        raise ScenarioError(f"{source}: unknown key(s) {sorted(unknown)}; expected {sorted(_TOP_LEVEL)} "
+                            f"and sections {sorted(_SECTIONS)}")
+    if "name" not in data:
+        raise ScenarioError(f"{source}: missing 'name'")
+    parts = {}
+    for section, cls in _SECTIONS.items():
+        table = data.get(section, {})
+        if not isinstance(table, dict):
+            raise ScenarioError(f"{source}: [{section}] must be a table")
+        parts[section] = _build_section(cls, table, f"{source} [{section}]")
+    scenario = Scenario(name=str(data["name"]), description=str(data.get("description", "")),
+                        timeout_s=_number(data.get("timeout_s", 12000.0), f"{source} timeout_s"), **parts)
+    validate(scenario, source)
+    return scenario
+
+
+def _number(value, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ScenarioError(f"{where}: expected a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ScenarioError(f"{where}: must be finite, got {value!r}")
+    return v
+
+
+def _build_section(cls, table: dict[str, Any], where: str):
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = set(table) - set(fields)
+    if unknown:
+        raise ScenarioError(f"{where}: unknown key(s) {sorted(unknown)}; expected some of {sorted(fields)}")
+    values = {}
+    for key, value in table.items():
+        default = getattr(cls(), key)
+        if isinstance(default, tuple):
+            if not isinstance(value, list) or len(value) != len(default):
+                raise ScenarioError(f"{where} {key}: expected a list of {len(default)} numbers, got {value!r}")
+            values[key] = tuple(_number(v, f"{where} {key}") for v in value)
+        else:
+            values[key] = _number(value, f"{where} {key}")
+    return cls(**values)
+
+
+def validate(s: Scenario, source: str = "<scenario>") -> None:
+    """Raise ScenarioError if a value is physically meaningless."""
+    def need(cond: bool, what: str):
+        if not cond:
+            raise ScenarioError(f"{source}: {what}")
+
+    need(s.timeout_s > 0.0, f"timeout_s must be > 0, got {s.timeout_s}")
+    need(100e3 <= s.orbit.altitude_m <= 2000e3, f"orbit altitude_m must be 100-2000 km (LEO), got {s.orbit.altitude_m}")
+    need(0.0 <= s.orbit.inclination_deg <= 180.0, f"orbit inclination_deg must be 0-180, got {s.orbit.inclination_deg}")
+    for label, vehicle in (("chaser", s.chaser), ("target", s.target)):
+        need(vehicle.mass_kg > 0.0, f"{label} mass_kg must be > 0")
+        need(vehicle.drag_coefficient >= 0.0, f"{label} drag_coefficient must be >= 0")
+        need(vehicle.drag_area_m2 >= 0.0, f"{label} drag_area_m2 must be >= 0")
+    need(s.thrusters.force_n > 0.0, "thrusters force_n must be > 0")
+    need(s.thrusters.minimum_impulse_bit_s >= 0.0, "thrusters minimum_impulse_bit_s must be >= 0")
+    te = s.thrust_error
+    need(te.tau_s > 0.0 and te.omega_n_rad_s > 0.0 and te.xi > 0.0,
+         "thrust_error tau_s, omega_n_rad_s and xi must be > 0 (a stable Gauss-Markov model)")
+    need(te.eta_w >= 0.0 and te.eta_v >= 0.0, "thrust_error eta_w, eta_v must be >= 0")
+    need(s.sensors.sigma_position_m >= 0.0 and s.sensors.sigma_velocity_mps >= 0.0,
+         "sensors sigma_position_m, sigma_velocity_mps must be >= 0")
+
+
+def random_scenario(seed: int, base: str | Scenario = "case1_vbar") -> Scenario:
+    """A Monte Carlo initial state (dissertation section 5.4), everything else from `base`.
+
+    Range uniform in 0.15-2.5 km; direction isotropic (uniform on the sphere; the dissertation does
+    not say, and this does not favour any approach corridor); velocity = the drift-free,
+    target-centred CW relative-orbit velocity at that position (host_sim.cw.drift_free_velocity)
+    + N(0, 0.5 m/s) per LVLH axis. The same seed gives the same scenario."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    base_scenario = load(base) if not isinstance(base, Scenario) else base
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CE7A]))
+    range_m = rng.uniform(150.0, 2500.0)
+    direction = rng.standard_normal(3)
+    direction /= np.linalg.norm(direction)
+    position = range_m * direction
+    velocity = drift_free_velocity(base_scenario.orbit.mean_motion_rad_s, position) + rng.normal(0.0, 0.5, 3)
+    chaser = dataclasses.replace(base_scenario.chaser, position_lvlh_m=tuple(float(v) for v in position),
+                                 velocity_lvlh_mps=tuple(float(v) for v in velocity))
+    return dataclasses.replace(
+        base_scenario, name=f"random_{int(seed)}", chaser=chaser,
+        description=(f"Monte Carlo initial state, seed {int(seed)}: range {range_m:.1f} m, isotropic direction, "
+                     f"drift-free velocity + N(0, 0.5 m/s); target and vehicles as {base_scenario.name}"))
