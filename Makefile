@@ -1,6 +1,6 @@
 # rvd-pil entry points. On a fresh Debian 12 machine each target installs what it needs.
 #   make test    Debian packages + project virtualenv + build, then the whole test suite
-#   make pil     (arrives with the QEMU work) the emulated PIL campaign and its report
+#   make pil     the emulated PIL campaign (QEMU, Zenoh, lockstep) and its report in reports/pil
 #   make bench   peer-solver and link benchmarks (prints figures; no pass/fail)
 #   make asan    C++ tests under AddressSanitizer + UndefinedBehaviorSanitizer
 SHELL := /bin/bash
@@ -11,7 +11,7 @@ JOBS ?= $(shell nproc)
 NATIVE := build/native
 CPP_SOURCES := $(shell find flight_sw tests/cpp -name '*.cpp' -o -name '*.hpp' -o -name 'CMakeLists.txt') CMakeLists.txt
 
-.PHONY: test pil bench asan deps deps-pil venv build native clean
+.PHONY: test pil bench asan deps deps-pil venv build native clean qemu-check
 
 deps:
 	tools/install-deps test
@@ -39,6 +39,7 @@ native: | deps
 	cmake -S . -B $(NATIVE) -DCMAKE_BUILD_TYPE=Release -DRVD_BUILD_TESTS=ON >/dev/null
 	cmake --build $(NATIVE) -j $(JOBS)
 
+test: export OPENBLAS_NUM_THREADS = 1
 test: build
 	cd $(NATIVE) && ctest --output-on-failure -j $(JOBS)
 	$(PY) -m pytest -q tests
@@ -51,9 +52,21 @@ asan: | deps
 bench: build
 	$(PY) -m pip install -q -e ".[test,bench]" --no-build-isolation
 	$(PY) -m bench.solvers
+	$(PY) -m bench.link_latency
 
-pil:
-	@echo "make pil arrives with the QEMU work (issue 5); nothing is emulated yet." >&2; exit 2
+# The emulation platform on its own (issue 5): fetches the plugin header, ARM kernels and busybox
+# into build/ (python -m qemu prepare), then runs every QEMU test: user mode, plugin, system mode.
+qemu-check: venv | deps-pil
+	$(PY) -m qemu prepare
+	$(PY) -m pytest -q tests/test_qemu_smoke.py tests/test_qemu_plugin.py tests/test_qemu_system.py
+
+# The emulated PIL campaign. TARGET=q7s (or a comma-separated list) selects targets, CPU=cortex-a8
+# swaps the emulated CPU model; PIL_ARGS passes more options to bench/campaign.py (e.g. --full).
+TARGET ?= q7s,rpi3
+PIL_OUT ?= reports/pil
+pil: export OPENBLAS_NUM_THREADS = 1
+pil: deps-pil build
+	$(PY) -m bench.campaign --targets $(TARGET) $(if $(CPU),--cpu $(CPU)) --out $(PIL_OUT) $(PIL_ARGS)
 
 clean:
 	rm -rf build

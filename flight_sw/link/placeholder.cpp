@@ -1,1 +1,0 @@
-// link component: sources arrive with its issue.
