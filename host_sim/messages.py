@@ -77,7 +77,7 @@ class Cmd:
     BODY = struct.Struct('<IBBBBd3d3d6dddQHHIddd')
     step: int = 0  # the nav step this answers
     phase: int = 0  # 1 rendezvous, 2 approach, 3 docking, 4 docked
-    guidance_status: int = 0  # 0 ok, 1 shifted plan, 2 zero thrust, 3 invalid state
+    guidance_status: int = 0  # 0 ok, 1 shifted plan, 2 zero thrust, 3 invalid state, 4 docked, 5 recovered (elastic QP)
     solver_status: int = 0  # 0 solved, 1 max_iter, 2 infeasible, 3 invalid_input, 4 numerical_error, 5 time_limit, 255 not run
     overrun: int = 0  # 1 when this solve exceeded its deadline
     period_s: float = 0.0  # control period Ts until the next nav [s]

@@ -261,7 +261,7 @@ struct Cmd {
   static constexpr std::size_t kSize = kHeaderSize + kBodySize;
   uint32_t step = 0;  // the nav step this answers
   uint8_t phase = 0;  // 1 rendezvous, 2 approach, 3 docking, 4 docked
-  uint8_t guidance_status = 0;  // 0 ok, 1 shifted plan, 2 zero thrust, 3 invalid state
+  uint8_t guidance_status = 0;  // 0 ok, 1 shifted plan, 2 zero thrust, 3 invalid state, 4 docked, 5 recovered (elastic QP)
   uint8_t solver_status = 0;  // 0 solved, 1 max_iter, 2 infeasible, 3 invalid_input, 4 numerical_error, 5 time_limit, 255 not run
   uint8_t overrun = 0;  // 1 when this solve exceeded its deadline
   double period_s = 0;  // control period Ts until the next nav [s]

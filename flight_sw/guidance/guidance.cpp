@@ -1,0 +1,223 @@
+#include "flight_sw/guidance/guidance.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+namespace rvd::guidance {
+
+namespace {
+constexpr double kDeg = 3.14159265358979323846 / 180.0;
+using Clock = std::chrono::steady_clock;
+
+double elapsed_us(Clock::time_point t0) {
+  return std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+}
+}  // namespace
+
+const char* to_string(StepStatus s) {
+  switch (s) {
+    case StepStatus::Ok: return "ok";
+    case StepStatus::ShiftedPlan: return "shifted_plan";
+    case StepStatus::ZeroThrust: return "zero_thrust";
+    case StepStatus::InvalidState: return "invalid_state";
+    case StepStatus::Docked: return "docked";
+    case StepStatus::Recovered: return "recovered";
+  }
+  return "unknown";
+}
+
+Guidance::Guidance(const GuidanceParams& params) : params_(params), x0_(solver::Vector::Zero(6)) {
+  const std::string err = params_.validate();
+  if (!err.empty()) throw std::invalid_argument("GuidanceParams: " + err);
+  int longest = 0;
+  for (Phase p : {Phase::Rendezvous, Phase::Approach, Phase::Docking}) {
+    const int k = index(p);
+    qps_[k] = std::make_unique<PhaseQp>(p, params_);
+    solvers_[k] = std::make_unique<solver::FastMpcSolver>(qps_[k]->dims(), params_.phase(p).solver);
+    recovery_qps_[k] = std::make_unique<PhaseQp>(p, params_, true);
+    recovery_solvers_[k] = std::make_unique<solver::FastMpcSolver>(recovery_qps_[k]->dims(), params_.phase(p).solver);
+    longest = std::max(longest, qps_[k]->N());
+  }
+  plan_.assign(longest, Eigen::Vector3d::Zero());
+}
+
+Guidance::~Guidance() = default;
+
+const PhaseQp& Guidance::phase_qp(Phase p, bool recovery) const {
+  return recovery ? *recovery_qps_[index(p)] : *qps_[index(p)];
+}
+const solver::FastMpcSolver& Guidance::solver(Phase p, bool recovery) const {
+  return recovery ? *recovery_solvers_[index(p)] : *solvers_[index(p)];
+}
+
+void Guidance::reset(Phase start) {
+  phase_ = start;
+  plan_len_ = plan_next_ = 0;
+  for (auto& s : solvers_) s->reset_warm_start();
+  for (auto& s : recovery_solvers_) s->reset_warm_start();
+}
+
+bool Guidance::ready_for_approach(const Vector6d& x, const TargetState& target) const {
+  const Eigen::Vector3d rho = x.head<3>();
+  const Matrix43d H = pyramid_rows_lvlh(target.q_lvlh_body, params_.approach.los_half_angle_deg * kDeg);
+  return (H * rho).maxCoeff() <= 0.0 && rho.norm() <= params_.keepout_radius_m + params_.rendezvous_switch_margin_m;
+}
+
+bool Guidance::ready_for_docking(const Vector6d& x, const TargetState& target) const {
+  // Within r2, slow enough for the docking QP's |v|_inf bound, and inside the docking pyramid (its hard
+  // cone would make every docking QP infeasible otherwise).
+  const Eigen::Vector3d rho = x.head<3>();
+  const Eigen::Vector3d port = target.q_lvlh_body * params_.port_body_m;
+  const Matrix43d H = pyramid_rows_lvlh(target.q_lvlh_body, params_.docking.los_half_angle_deg * kDeg);
+  return rho.norm() <= params_.approach_stop_m + params_.approach_switch_margin_m &&
+         x.tail<3>().cwiseAbs().maxCoeff() <= params_.v_max_mps && (H * (rho - port)).maxCoeff() <= 0.0;
+}
+
+bool Guidance::docked(const Vector6d& x, const TargetState& target) const {
+  const Eigen::Vector3d port = target.q_lvlh_body * params_.port_body_m;
+  const Eigen::Vector3d port_v = omega_lvlh(target).cross(port);
+  const Eigen::Vector3d rel = x.head<3>() - port;
+  const Matrix43d H = pyramid_rows_lvlh(target.q_lvlh_body, params_.docking.los_half_angle_deg * kDeg);
+  return rel.norm() <= params_.dock_tolerance_m &&
+         (x.tail<3>() - port_v).cwiseAbs().maxCoeff() <= params_.v_max_mps &&
+         (H * rel).maxCoeff() <= params_.dock_cone_tolerance_m;
+}
+
+bool Guidance::nav_plausible(const NavInput& nav) const {
+  if (!std::isfinite(nav.t_s) || !nav.x_lvlh.allFinite() || !nav.q_lvlh_body.coeffs().allFinite() ||
+      !nav.omega_body_rad_s.allFinite())
+    return false;
+  if (nav.x_lvlh.head<3>().norm() > params_.max_range_m || nav.x_lvlh.tail<3>().norm() > params_.max_speed_mps)
+    return false;
+  if (std::abs(nav.q_lvlh_body.norm() - 1.0) > 1e-3) return false;  // not an attitude
+  return nav.omega_body_rad_s.norm() <= params_.max_spin_rad_s;
+}
+
+void Guidance::fall_back(Command& cmd) {
+  if (plan_phase_ == phase_ && plan_next_ < plan_len_) {
+    cmd.dv_cmd_mps = plan_[plan_next_];
+    cmd.plan_age = plan_next_;
+    ++plan_next_;
+    cmd.fallback = Fallback::ShiftedPlan;
+  } else {
+    cmd.dv_cmd_mps.setZero();
+    cmd.fallback = Fallback::ZeroThrust;
+  }
+}
+
+bool Guidance::solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Vector6d& x,
+                               const TargetState& target, double budget_left_us, solver::Info& info) {
+  if (budget_left_us < 0.0) {  // the step's budget is spent already
+    info = solver::Info{};
+    info.status = solver::Status::TimeLimit;
+    return false;
+  }
+  qp.build(x, target);
+  x0_ = x;
+  sol.settings().time_limit_us = budget_left_us;
+  sol.solve(qp.qp(), x0_);
+  info = sol.info();
+  const bool converged = info.status == solver::Status::Solved ||
+                         (info.status == solver::Status::MaxIter &&
+                          info.primal_residual <= params_.max_iter_accept_residual);
+  if (!converged) return false;
+  const auto& u = sol.u();
+  for (int i = 0; i < qp.N(); ++i) {
+    if (!u[i].head<3>().allFinite()) return false;
+  }
+  // Tiny excursions past the box (solver tolerance) are clipped so the command is exactly admissible.
+  for (int i = 0; i < qp.N(); ++i) plan_[i] = u[i].head<3>().cwiseMax(-qp.u_max_mps()).cwiseMin(qp.u_max_mps());
+  plan_len_ = qp.N();
+  plan_next_ = 1;
+  plan_phase_ = phase_;
+  sol.shift_warm_start();
+  return true;
+}
+
+Command Guidance::step(const NavInput& nav, double time_limit_us) {
+  const Clock::time_point t0 = Clock::now();
+  Command cmd;
+  cmd.step = nav.step;
+  cmd.t_s = nav.t_s;
+
+  if (!nav_plausible(nav)) {
+    cmd.phase = phase_;
+    cmd.status = StepStatus::InvalidState;
+    if (phase_ != Phase::Docked) fall_back(cmd);
+    else cmd.fallback = Fallback::ZeroThrust;
+  } else {
+    TargetState target;
+    target.q_lvlh_body = nav.q_lvlh_body.normalized();
+    target.omega_body_rad_s = nav.omega_body_rad_s;
+    const Vector6d& x = nav.x_lvlh;
+    cmd.range_m = x.head<3>().norm();
+    cmd.port_distance_m = (x.head<3>() - target.q_lvlh_body * params_.port_body_m).norm();
+
+    // Algorithm 1: the switching conditions are checked on the newest state; a state can pass several.
+    const Phase before = phase_;
+    if (phase_ == Phase::Rendezvous && ready_for_approach(x, target)) phase_ = Phase::Approach;
+    if (phase_ == Phase::Approach && ready_for_docking(x, target)) phase_ = Phase::Docking;
+    if (phase_ == Phase::Docking && docked(x, target)) phase_ = Phase::Docked;
+    if (phase_ != before) plan_len_ = plan_next_ = 0;  // a plan is only valid with its own period
+    cmd.phase = phase_;
+
+    if (phase_ == Phase::Docked) {
+      cmd.status = StepStatus::Docked;
+    } else {
+      const int k = index(phase_);
+      // What is left of the step's budget: 0 means no limit (the solver's convention), -1 means spent.
+      auto left_us = [&]() {
+        if (!(time_limit_us > 0.0)) return 0.0;
+        const double left = time_limit_us - elapsed_us(t0);
+        return left > 0.0 ? left : -1.0;
+      };
+      cmd.solved = left_us() >= 0.0;
+      bool usable = solve_into_plan(*qps_[k], *solvers_[k], x, target, left_us(), cmd.solver);
+      if (usable) {
+        cmd.status = StepStatus::Ok;
+      } else if (cmd.solver.status == solver::Status::Infeasible && params_.recovery) {
+        usable = solve_into_plan(*recovery_qps_[k], *recovery_solvers_[k], x, target, left_us(), cmd.recovery);
+        if (usable) cmd.status = StepStatus::Recovered;
+      }
+      if (usable) {
+        cmd.dv_cmd_mps = plan_[0];
+      } else {
+        fall_back(cmd);
+        cmd.status = cmd.fallback == Fallback::ShiftedPlan ? StepStatus::ShiftedPlan : StepStatus::ZeroThrust;
+      }
+    }
+  }
+
+  const PhaseParams& pp = params_.phase(cmd.phase);
+  cmd.period_s = pp.Ts_s;
+  if (cmd.status == StepStatus::Docked) cmd.dv_cmd_mps.setZero();
+  const Allocation a = allocate_thrusters(cmd.dv_cmd_mps, max_pulse_s(pp.u_max_mps, params_.thrusters), params_.thrusters);
+  cmd.pulse_s = a.pulse_s;
+  cmd.dv_alloc_mps = a.dv_alloc_mps;
+  cmd.step_time_us = elapsed_us(t0);
+  return cmd;
+}
+
+ScenarioCase dissertation_case(int number, double spin_deg_s) {
+  ScenarioCase c;
+  c.x0 << 140.0, -1580.0, 60.0, -0.90, -0.32, 0.0;
+  c.omega_body_rad_s.setZero();
+  switch (number) {
+    case 1:  // V-bar: docking axis (body +x) along LVLH -y
+      c.q_lvlh_body = Eigen::AngleAxisd(-90.0 * kDeg, Eigen::Vector3d::UnitZ());
+      break;
+    case 2:  // R-bar: docking axis along LVLH +x
+      c.q_lvlh_body = Eigen::Quaterniond::Identity();
+      break;
+    case 3:  // starts like case 1 and spins about body z (= LVLH z)
+      c.q_lvlh_body = Eigen::AngleAxisd(-90.0 * kDeg, Eigen::Vector3d::UnitZ());
+      c.omega_body_rad_s = Eigen::Vector3d(0.0, 0.0, spin_deg_s * kDeg);
+      break;
+    default: throw std::invalid_argument("dissertation_case: number must be 1, 2 or 3");
+  }
+  return c;
+}
+
+}  // namespace rvd::guidance

@@ -1,0 +1,118 @@
+#include "flight_sw/guidance/params.hpp"
+
+#include <cmath>
+#include <sstream>
+
+namespace rvd::guidance {
+
+const char* to_string(Phase p) {
+  switch (p) {
+    case Phase::Rendezvous: return "rendezvous";
+    case Phase::Approach: return "approach";
+    case Phase::Docking: return "docking";
+    case Phase::Docked: return "docked";
+  }
+  return "unknown";
+}
+
+// Table 3.1 of the dissertation.
+PhaseParams GuidanceParams::default_rendezvous() {
+  PhaseParams p;
+  p.N = 30;
+  p.Ts_s = 30.0;
+  p.Q_diag << 1.0, 1.0, 100.0, 1.0, 1.0, 10.0;
+  p.R_diag.setConstant(1e3);
+  p.lambda = 10.0;
+  p.los_half_angle_deg = 15.0;
+  p.u_max_mps = 0.1786;
+  return p;
+}
+
+PhaseParams GuidanceParams::default_approach() {
+  PhaseParams p;
+  p.N = 15;
+  p.Ts_s = 20.0;
+  p.Q_diag.setOnes();
+  p.R_diag.setConstant(1e3);
+  // Table 3.1's lambda = 10 read per kilometre (= 1e4 per metre): an exact penalty that keeps the chaser
+  // in the approach corridor; 10 per metre lets Case 3 cut 48 m outside the cone inside r1 (README).
+  p.lambda = 1e4;
+  p.los_half_angle_deg = 15.0;
+  p.u_max_mps = 0.1786;
+  return p;
+}
+
+PhaseParams GuidanceParams::default_docking() {
+  PhaseParams p;
+  p.N = 12;
+  p.Ts_s = 5.0;
+  p.Q_diag.setConstant(20.0);
+  p.R_diag.setConstant(1e6);
+  p.lambda = 10.0;  // listed in Table 3.1; the docking cone is hard, so lambda is unused there
+  p.los_half_angle_deg = 8.0;
+  p.u_max_mps = 0.0357;
+  return p;
+}
+
+double GuidanceParams::mean_motion_rad_s() const { return guidance::mean_motion_rad_s(orbit_altitude_m); }
+
+const PhaseParams& GuidanceParams::phase(Phase p) const {
+  switch (p) {
+    case Phase::Rendezvous: return rendezvous;
+    case Phase::Approach: return approach;
+    default: return docking;
+  }
+}
+PhaseParams& GuidanceParams::phase(Phase p) {
+  return const_cast<PhaseParams&>(static_cast<const GuidanceParams*>(this)->phase(p));
+}
+
+namespace {
+bool positive(double v) { return std::isfinite(v) && v > 0.0; }
+bool nonnegative(double v) { return std::isfinite(v) && v >= 0.0; }
+
+void check_phase(std::ostringstream& err, const char* name, const PhaseParams& p) {
+  if (p.N < 1 || p.N > 1000) err << name << ".N must be in 1..1000 (got " << p.N << "); ";
+  if (!positive(p.Ts_s)) err << name << ".Ts_s must be > 0; ";
+  if (!p.Q_diag.allFinite() || (p.Q_diag.array() < 0.0).any()) err << name << ".Q_diag must be >= 0; ";
+  if (!p.R_diag.allFinite() || (p.R_diag.array() <= 0.0).any()) err << name << ".R_diag must be > 0; ";
+  if (!nonnegative(p.lambda)) err << name << ".lambda must be >= 0; ";
+  if (!(p.los_half_angle_deg > 0.0 && p.los_half_angle_deg < 89.0))
+    err << name << ".los_half_angle_deg must be in (0, 89); ";
+  if (!positive(p.u_max_mps)) err << name << ".u_max_mps must be > 0; ";
+  if (p.solver.max_iter < 1) err << name << ".solver.max_iter must be >= 1; ";
+}
+}  // namespace
+
+std::string GuidanceParams::validate() const {
+  std::ostringstream err;
+  check_phase(err, "rendezvous", rendezvous);
+  check_phase(err, "approach", approach);
+  check_phase(err, "docking", docking);
+  if (!(orbit_altitude_m > 100e3 && orbit_altitude_m < 1e8)) err << "orbit_altitude_m must be in (100 km, 1e8 m); ";
+  if (!positive(keepout_radius_m)) err << "keepout_radius_m must be > 0; ";
+  if (!positive(approach_stop_m) || !(approach_stop_m < keepout_radius_m))
+    err << "approach_stop_m must be > 0 and < keepout_radius_m; ";
+  if (!positive(dock_tolerance_m)) err << "dock_tolerance_m must be > 0; ";
+  if (!positive(v_max_mps)) err << "v_max_mps must be > 0; ";
+  if (!nonnegative(dock_cone_tolerance_m)) err << "dock_cone_tolerance_m must be >= 0; ";
+  if (!port_body_m.allFinite() || !(port_body_m.x() >= 0.0 && port_body_m.x() < approach_stop_m))
+    err << "port_body_m must be finite with 0 <= x < approach_stop_m (the cones open along body +x); ";
+  if (!std::isfinite(rendezvous_setpoint_offset_m) || keepout_radius_m + rendezvous_setpoint_offset_m < 0.0)
+    err << "rendezvous_setpoint_offset_m must keep the set point range >= 0; ";
+  if (!std::isfinite(approach_setpoint_offset_m) || approach_stop_m + approach_setpoint_offset_m < 0.0)
+    err << "approach_setpoint_offset_m must keep the set point range >= 0; ";
+  if (!nonnegative(rendezvous_switch_margin_m)) err << "rendezvous_switch_margin_m must be >= 0; ";
+  if (!nonnegative(approach_switch_margin_m)) err << "approach_switch_margin_m must be >= 0; ";
+  if (!positive(keepout_rate_cap_factor)) err << "keepout_rate_cap_factor must be > 0; ";
+  if (!positive(thrusters.mass_kg) || !positive(thrusters.thrust_N) || !nonnegative(thrusters.min_impulse_bit_s))
+    err << "thrusters need mass_kg > 0, thrust_N > 0, min_impulse_bit_s >= 0; ";
+  if (!positive(max_range_m) || !positive(max_speed_mps) || !positive(max_spin_rad_s))
+    err << "max_range_m, max_speed_mps, max_spin_rad_s must be > 0; ";
+  if (!positive(recovery_weight) || !nonnegative(recovery_quadratic))
+    err << "recovery_weight must be > 0 and recovery_quadratic >= 0; ";
+  if (!nonnegative(max_iter_accept_residual)) err << "max_iter_accept_residual must be >= 0; ";
+  return err.str();
+}
+
+}  // namespace rvd::guidance

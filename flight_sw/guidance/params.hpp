@@ -1,0 +1,110 @@
+// Every parameter of the three-phase guidance, with the defaults of dissertation Table 3.1 and, for the
+// values the dissertation leaves unstated, the choices documented in flight_sw/guidance/README.md.
+#pragma once
+
+#include <Eigen/Dense>
+
+#include <cstdint>
+#include <string>
+
+#include "flight_sw/guidance/allocation.hpp"
+#include "flight_sw/guidance/cw.hpp"
+#include "flight_sw/solver/ocp_qp.hpp"
+
+namespace rvd::guidance {
+
+enum class Phase : uint8_t { Rendezvous = 1, Approach = 2, Docking = 3, Docked = 4 };
+const char* to_string(Phase p);
+
+enum class TerminalWeight : uint8_t {
+  StageWeight = 0,  // Q_f = Q of the phase
+  Dare = 1          // Q_f = solution of the discrete algebraic Riccati equation of (A, B, Q, R)
+};
+enum class RendezvousObjective : uint8_t {
+  Quadratic = 0,  // eq 3.2 / 3.7
+  OneNorm = 1     // eq 2.10: ||Q (x - xs)||_1 + ||R u||_1 (an LP; Table 3.6)
+};
+enum class KeepoutDirection : uint8_t {
+  NaturalMotion = 0,  // sec 3.1.3: shortest way when the axis is reachable within N capped steps,
+                      // else the way the natural relative motion circulates (about -z of LVLH)
+  Shortest = 1        // always the shorter great-circle way
+};
+
+struct PhaseParams {
+  int N = 30;                     // prediction horizon (steps)
+  double Ts_s = 30.0;             // control period [s]
+  Vector6d Q_diag = Vector6d::Ones();            // state weight (position m, velocity m/s)
+  Eigen::Vector3d R_diag = Eigen::Vector3d::Constant(1e3);  // delta-v weight
+  double lambda = 10.0;           // line-of-sight cone penalty weight (per metre outside a face)
+  double los_half_angle_deg = 15.0;  // half-angle of the four-sided pyramid around the docking axis
+  double u_max_mps = 0.1786;      // |delta-v|_inf per period
+  TerminalWeight terminal_weight = TerminalWeight::StageWeight;
+  solver::Settings solver = default_solver();  // settings of this phase's Fast MPC solver
+
+  // The solver's defaults with a 200-iteration cap: the recovery QPs (large elastic costs) need up to
+  // ~100-200 interior point iterations; in flight the step's time budget is the binding limit.
+  static solver::Settings default_solver() {
+    solver::Settings s;
+    s.max_iter = 200;
+    return s;
+  }
+};
+
+struct GuidanceParams {
+  PhaseParams rendezvous = default_rendezvous();
+  PhaseParams approach = default_approach();
+  PhaseParams docking = default_docking();
+
+  // Orbit of the target (circular): sets the CW mean motion.
+  double orbit_altitude_m = 500e3;
+
+  // Geometry (unstated in the dissertation; see README).
+  double keepout_radius_m = 200.0;     // r1: keep-out sphere around the target CoM (rendezvous)
+  double approach_stop_m = 30.0;       // r2: overshoot plane along the docking axis (approach)
+  double dock_tolerance_m = 0.5;       // r3: docked when this close to the port (plus speed and cone)
+  double v_max_mps = 0.1;              // docking |v|_inf bound, also required to enter docking
+  double dock_cone_tolerance_m = 0.01;  // docked only inside the docking pyramid, to this tolerance
+  Eigen::Vector3d port_body_m = Eigen::Vector3d(0.5, 0.0, 0.0);  // docking port; docking axis is body +x
+
+  // Rendezvous objective and set point (Table 3.6 variants).
+  RendezvousObjective rendezvous_objective = RendezvousObjective::Quadratic;
+  bool rendezvous_use_setpoint = true;       // false: the set point is the target CoM (origin)
+  double rendezvous_setpoint_offset_m = 0.0;  // set point on the axis at r1 + offset from the CoM
+  double approach_setpoint_offset_m = 0.0;    // approach set point on the axis at r2 + offset
+
+  // Phase switching (Algorithm 1).
+  double rendezvous_switch_margin_m = 20.0;  // rendezvous -> approach: inside the cone and |rho| <= r1 + margin
+  double approach_switch_margin_m = 2.0;     // approach -> docking: |rho| <= r2 + margin, |v|_inf <= v_max,
+                                             // inside the docking pyramid
+
+  // Rotating keep-out hyperplanes (eqs 3.5-3.6).
+  double keepout_rate_cap_factor = 1.0;  // per-step rotation cap = factor * mean motion * Ts
+  KeepoutDirection keepout_direction = KeepoutDirection::NaturalMotion;
+
+  ThrusterParams thrusters;
+
+  // Plausibility limits of a navigation input; beyond them the state is rejected as absurd.
+  double max_range_m = 100e3;
+  double max_speed_mps = 100.0;
+  double max_spin_rad_s = 1.0;
+  // When a phase QP is infeasible, solve it again with its hard state constraints elastic (cost
+  // recovery_weight * e + recovery_quadratic * e^2 for the worst violation e >= 0 on a stage, in m or m/s)
+  // before falling back to the previous plan.
+  bool recovery = true;
+  double recovery_weight = 1e4;
+  double recovery_quadratic = 10.0;
+  // A solve that stopped at the iteration cap is used when its primal residual is this small.
+  double max_iter_accept_residual = 1e-6;
+
+  double mean_motion_rad_s() const;
+  const PhaseParams& phase(Phase p) const;  // Docked maps to docking
+  PhaseParams& phase(Phase p);
+  // Empty when usable, else what is wrong (the Guidance constructor throws with this text).
+  std::string validate() const;
+
+  static PhaseParams default_rendezvous();
+  static PhaseParams default_approach();
+  static PhaseParams default_docking();
+};
+
+}  // namespace rvd::guidance

@@ -1,0 +1,310 @@
+#include "flight_sw/guidance/phase_qp.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace rvd::guidance {
+
+namespace {
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kDeg = kPi / 180.0;
+}  // namespace
+
+PhaseQp::StageLayout PhaseQp::stage(int i) const {
+  StageLayout L;
+  const bool terminal = (i == N_);
+  auto col = [&L](int width) { int c = L.nu; L.nu += width; return c; };
+  auto row = [&L](int height) { int r = L.nc; L.nc += height; return r; };
+  if (!terminal) col(3);  // delta-v
+  if (!terminal) L.box_row = row(6);
+  switch (phase_) {
+    case Phase::Rendezvous:
+      if (i >= 1) L.keepout_row = row(1);
+      if (one_norm_) {
+        L.t_col = col(6);
+        L.t_row = row(12);
+        if (!terminal) {
+          L.w_col = col(3);
+          L.w_row = row(6);
+        }
+      }
+      if (terminal && cone_slacks_) {
+        L.slack_col = col(4);
+        L.cone_row = row(8);
+      }
+      break;
+    case Phase::Approach:
+      if (i >= 1) L.keepout_row = row(1);  // the overshoot plane
+      if (cone_slacks_) {
+        L.slack_col = col(4);
+        L.cone_row = row(8);
+      }
+      break;
+    case Phase::Docking:
+    case Phase::Docked:
+      if (i >= 1) {
+        L.cone_row = row(4);
+        L.vel_row = row(6);
+      }
+      break;
+  }
+  // Recovery variant: one elastic input e >= 0 per stage lets every hard state row of the stage give
+  // way by e at the cost recovery_weight * e (an exact L-infinity penalty), so the QP is always feasible.
+  if (recovery_ && i >= 1) {
+    L.elastic_col = col(1);
+    L.elastic_row = row(1);
+  }
+  return L;
+}
+
+KeepoutPlanes plan_keepout_rotation(const Eigen::Vector3d& rho, const Eigen::Vector3d& axis, int N,
+                                    double max_step_rad, KeepoutDirection direction) {
+  KeepoutPlanes plan;
+  const double r = rho.norm();
+  if (!(r > 1e-9) || N < 1) return plan;  // at the CoM there is no direction to turn from
+  const Eigen::Vector3d u0 = rho / r;
+  const double theta = std::acos(std::clamp(u0.dot(axis), -1.0, 1.0));
+  Eigen::Vector3d k = u0.cross(axis);
+  const Eigen::Vector3d natural(0.0, 0.0, -1.0);  // CW relative orbits circulate about -z of LVLH
+  if (k.norm() < 1e-12) {
+    if (theta < 1e-9) return plan;  // already on the axis
+    // Opposite the axis: every great circle is as short; take the one the natural motion follows.
+    k = natural - natural.dot(u0) * u0;
+    if (k.norm() < 1e-9) k = u0.unitOrthogonal();
+  }
+  k.normalize();
+  plan.rotation_axis = k;
+  plan.total_rad = theta;
+  if (direction == KeepoutDirection::NaturalMotion && theta > N * max_step_rad && k.dot(natural) < 0.0) {
+    // The axis is out of reach within this horizon: go round the way the relative orbit drifts.
+    plan.rotation_axis = -k;
+    plan.total_rad = 2.0 * kPi - theta;
+    plan.natural_way = true;
+  }
+  plan.step_rad = std::min(plan.total_rad / N, max_step_rad);
+  return plan;
+}
+
+Matrix6d solve_dare(const Matrix6d& A, const Matrix63d& B, const Matrix6d& Q, const Eigen::Matrix3d& R) {
+  Matrix6d P = Q;
+  for (int it = 0; it < 100000; ++it) {
+    const Eigen::Matrix3d S = R + B.transpose() * P * B;
+    const Eigen::Matrix<double, 3, 6> K = S.ldlt().solve(B.transpose() * P * A);
+    Matrix6d Pn = Q + A.transpose() * P * A - A.transpose() * P * B * K;
+    Pn = 0.5 * (Pn + Pn.transpose());
+    const double change = (Pn - P).cwiseAbs().maxCoeff();
+    P = Pn;
+    if (change <= 1e-12 * std::max(1.0, P.cwiseAbs().maxCoeff())) break;
+  }
+  return P;
+}
+
+PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
+    : phase_(phase), params_(params), recovery_(recovery) {
+  if (phase_ == Phase::Docked) phase_ = Phase::Docking;
+  const PhaseParams& pp = params_.phase(phase_);
+  N_ = pp.N;
+  Ts_ = pp.Ts_s;
+  u_max_ = pp.u_max_mps;
+  n_ = params_.mean_motion_rad_s();
+  one_norm_ = (phase_ == Phase::Rendezvous && params_.rendezvous_objective == RendezvousObjective::OneNorm);
+  cone_slacks_ = (phase_ != Phase::Docking) && pp.lambda > 0.0;
+  cw_impulsive_model(n_, Ts_, A_, B_);
+  Qw_ = pp.Q_diag.asDiagonal();
+  Rw_ = pp.R_diag;
+  if (pp.terminal_weight == TerminalWeight::Dare && !one_norm_)
+    Qf_ = solve_dare(A_, B_, Qw_, Eigen::Matrix3d(Rw_.asDiagonal()));
+  else
+    Qf_ = Qw_;
+
+  solver::OcpQpDims dims;
+  dims.N = N_;
+  dims.nx = 6;
+  for (int i = 0; i <= N_; ++i) {
+    const StageLayout L = stage(i);
+    dims.nu.push_back(L.nu);
+    dims.nc.push_back(L.nc);
+  }
+  qp_ = solver::OcpQp(dims);
+  keepout_normals_.assign(N_ + 1, Eigen::Vector3d::Zero());
+  reference_.assign(N_ + 1, Vector6d::Zero());
+
+  // Everything that does not change between periods is filled once here.
+  for (int i = 0; i <= N_; ++i) {
+    const StageLayout L = stage(i);
+    if (i < N_) {
+      qp_.A[i] = A_;
+      qp_.B[i].leftCols<3>() = B_;
+    }
+    if (!one_norm_) {
+      qp_.Q[i] = 2.0 * (i < N_ ? Qw_ : Qf_);
+      if (i < N_) qp_.R[i].topLeftCorner<3, 3>() = 2.0 * Eigen::Matrix3d(Rw_.asDiagonal());
+    }
+    if (L.box_row >= 0) {
+      qp_.D[i].block<3, 3>(L.box_row, 0).setIdentity();
+      qp_.D[i].block<3, 3>(L.box_row + 3, 0) = -Eigen::Matrix3d::Identity();
+      qp_.d[i].segment<6>(L.box_row).setConstant(u_max_);
+    }
+    if (L.slack_col >= 0) {
+      qp_.r[i].segment<4>(L.slack_col).setConstant(pp.lambda);
+      qp_.D[i].block<4, 4>(L.cone_row, L.slack_col) = -Eigen::Matrix4d::Identity();      // H rho - s <= 0
+      qp_.D[i].block<4, 4>(L.cone_row + 4, L.slack_col) = -Eigen::Matrix4d::Identity();  // -s <= 0
+    }
+    if (L.t_col >= 0) {  // 1-norm state term: t >= +-Q (x - xs), cost 1't
+      const Vector6d w = (i < N_ ? Qw_ : Qf_).diagonal();
+      qp_.r[i].segment<6>(L.t_col).setOnes();
+      qp_.C[i].block<6, 6>(L.t_row, 0) = w.asDiagonal();
+      qp_.C[i].block<6, 6>(L.t_row + 6, 0) = -Matrix6d(w.asDiagonal());
+      qp_.D[i].block<6, 6>(L.t_row, L.t_col) = -Matrix6d::Identity();
+      qp_.D[i].block<6, 6>(L.t_row + 6, L.t_col) = -Matrix6d::Identity();
+    }
+    if (L.w_col >= 0) {  // 1-norm input term: w >= +-R u, cost 1'w
+      qp_.r[i].segment<3>(L.w_col).setOnes();
+      qp_.D[i].block<3, 3>(L.w_row, 0) = Rw_.asDiagonal();
+      qp_.D[i].block<3, 3>(L.w_row + 3, 0) = -Eigen::Matrix3d(Rw_.asDiagonal());
+      qp_.D[i].block<3, 3>(L.w_row, L.w_col) = -Eigen::Matrix3d::Identity();
+      qp_.D[i].block<3, 3>(L.w_row + 3, L.w_col) = -Eigen::Matrix3d::Identity();
+    }
+    if (L.vel_row >= 0) {
+      qp_.C[i].block<3, 3>(L.vel_row, 3).setIdentity();
+      qp_.C[i].block<3, 3>(L.vel_row + 3, 3) = -Eigen::Matrix3d::Identity();
+      qp_.d[i].segment<6>(L.vel_row).setConstant(params_.v_max_mps);
+    }
+    if (L.elastic_col >= 0) {
+      const int e = L.elastic_col;
+      qp_.r[i](e) = params_.recovery_weight;
+      qp_.R[i](e, e) = 2.0 * params_.recovery_quadratic;  // keeps the Newton systems well conditioned
+      qp_.D[i](L.elastic_row, e) = -1.0;  // -e <= 0
+      if (L.keepout_row >= 0) qp_.D[i](L.keepout_row, e) = -1.0;
+      if (phase_ == Phase::Docking) {     // the docking cone is hard; the approach cone is already soft
+        for (int k = 0; k < 4; ++k) qp_.D[i](L.cone_row + k, e) = -1.0;
+        for (int k = 0; k < 6; ++k) qp_.D[i](L.vel_row + k, e) = -1.0;
+      }
+    }
+  }
+}
+
+int PhaseQp::slack_offset(int i) const { return stage(i).slack_col; }
+int PhaseQp::keepout_row(int i) const { return stage(i).keepout_row; }
+int PhaseQp::cone_row(int i) const { return stage(i).cone_row; }
+int PhaseQp::velocity_row(int i) const { return stage(i).vel_row; }
+int PhaseQp::elastic_offset(int i) const { return stage(i).elastic_col; }
+
+void PhaseQp::build(const Vector6d& x0, const TargetState& target) {
+  x0_ = x0;
+  switch (phase_) {
+    case Phase::Rendezvous:
+      if (one_norm_)
+        build_rendezvous_one_norm(x0, target);
+      else
+        build_rendezvous(x0, target);
+      break;
+    case Phase::Approach: build_approach(x0, target); break;
+    case Phase::Docking:
+    case Phase::Docked: build_docking(x0, target); break;
+  }
+}
+
+// Set point on the docking axis at `range_m` from the CoM, rotating with the target over the horizon.
+void PhaseQp::fill_setpoints(const TargetState& target, double range_m) {
+  const Eigen::Vector3d w = omega_lvlh(target);
+  for (int i = 0; i <= N_; ++i) {
+    const Eigen::Vector3d p = range_m * (attitude_after(target, i * Ts_) * Eigen::Vector3d::UnitX());
+    reference_[i].head<3>() = p;
+    reference_[i].tail<3>() = w.cross(p);
+  }
+}
+
+void PhaseQp::fill_keepout(const Vector6d& x0, const TargetState& target) {
+  const Eigen::Vector3d rho = x0.head<3>();
+  const Eigen::Vector3d axis_N = attitude_after(target, N_ * Ts_) * Eigen::Vector3d::UnitX();
+  keepout_plan_ = plan_keepout_rotation(rho, axis_N, N_, params_.keepout_rate_cap_factor * n_ * Ts_,
+                                        params_.keepout_direction);
+  // Started inside the sphere (possible for random starts): keep at least the current range rather
+  // than demand an impossible jump back out; the set point then pulls the chaser outwards.
+  const double r = rho.norm();
+  keepout_radius_used_ = std::min(params_.keepout_radius_m, r);
+  const Eigen::Vector3d u0 = r > 1e-9 ? Eigen::Vector3d(rho / r) : axis_N;
+  keepout_normals_[0] = u0;
+  for (int i = 1; i <= N_; ++i) {
+    const Eigen::Vector3d n_i = Eigen::AngleAxisd(i * keepout_plan_.step_rad, keepout_plan_.rotation_axis) * u0;
+    keepout_normals_[i] = n_i;
+    const int row = stage(i).keepout_row;
+    qp_.C[i].block<1, 3>(row, 0) = -n_i.transpose();  // n_i' rho_i >= r1
+    qp_.d[i](row) = -keepout_radius_used_;
+  }
+}
+
+void PhaseQp::build_rendezvous(const Vector6d& x0, const TargetState& target) {
+  const PhaseParams& pp = params_.rendezvous;
+  const double range = params_.rendezvous_use_setpoint
+                           ? params_.keepout_radius_m + params_.rendezvous_setpoint_offset_m
+                           : 0.0;
+  fill_setpoints(target, range);
+  for (int i = 0; i <= N_; ++i) qp_.q[i].noalias() = -qp_.Q[i] * reference_[i];
+  fill_keepout(x0, target);
+  if (cone_slacks_) {  // terminal cone penalty with the pyramid predicted at t_N (sec 3.4)
+    const Matrix43d H = pyramid_rows_lvlh(attitude_after(target, N_ * Ts_), pp.los_half_angle_deg * kDeg);
+    qp_.C[N_].block<4, 3>(stage(N_).cone_row, 0) = H;
+  }
+}
+
+void PhaseQp::build_rendezvous_one_norm(const Vector6d& x0, const TargetState& target) {
+  const PhaseParams& pp = params_.rendezvous;
+  const double range = params_.rendezvous_use_setpoint
+                           ? params_.keepout_radius_m + params_.rendezvous_setpoint_offset_m
+                           : 0.0;
+  fill_setpoints(target, range);
+  for (int i = 0; i <= N_; ++i) {
+    const StageLayout L = stage(i);
+    const Vector6d qe = (i < N_ ? Qw_ : Qf_).diagonal().cwiseProduct(reference_[i]);
+    qp_.d[i].segment<6>(L.t_row) = qe;        //  Q x - t <=  Q xs
+    qp_.d[i].segment<6>(L.t_row + 6) = -qe;   // -Q x - t <= -Q xs
+  }
+  fill_keepout(x0, target);
+  if (cone_slacks_) {
+    const Matrix43d H = pyramid_rows_lvlh(attitude_after(target, N_ * Ts_), pp.los_half_angle_deg * kDeg);
+    qp_.C[N_].block<4, 3>(stage(N_).cone_row, 0) = H;
+  }
+}
+
+void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
+  (void)x0;
+  const PhaseParams& pp = params_.approach;
+  fill_setpoints(target, params_.approach_stop_m + params_.approach_setpoint_offset_m);
+  for (int i = 0; i <= N_; ++i) {
+    qp_.q[i].noalias() = -qp_.Q[i] * reference_[i];
+    const StageLayout L = stage(i);
+    const Eigen::Quaterniond q_i = attitude_after(target, i * Ts_);
+    if (L.keepout_row >= 0) {  // overshoot plane n_cone' rho >= r2 (eq 3.9)
+      const Eigen::Vector3d axis = q_i * Eigen::Vector3d::UnitX();
+      keepout_normals_[i] = axis;
+      qp_.C[i].block<1, 3>(L.keepout_row, 0) = -axis.transpose();
+      qp_.d[i](L.keepout_row) = -params_.approach_stop_m;
+    }
+    if (L.cone_row >= 0)  // the approach cone has its apex at the CoM
+      qp_.C[i].block<4, 3>(L.cone_row, 0) = pyramid_rows_lvlh(q_i, pp.los_half_angle_deg * kDeg);
+  }
+}
+
+void PhaseQp::build_docking(const Vector6d& x0, const TargetState& target) {
+  (void)x0;
+  const PhaseParams& pp = params_.docking;
+  const Eigen::Vector3d w = omega_lvlh(target);
+  for (int i = 0; i <= N_; ++i) {
+    const Eigen::Quaterniond q_i = attitude_after(target, i * Ts_);
+    const Eigen::Vector3d port = q_i * params_.port_body_m;
+    reference_[i].head<3>() = port;
+    reference_[i].tail<3>() = w.cross(port);
+    qp_.q[i].noalias() = -qp_.Q[i] * reference_[i];
+    const StageLayout L = stage(i);
+    if (L.cone_row >= 0) {  // hard cone with its apex at the port: H (rho - port) <= 0 (eq 3.12)
+      const Matrix43d H = pyramid_rows_lvlh(q_i, pp.los_half_angle_deg * kDeg);
+      qp_.C[i].block<4, 3>(L.cone_row, 0) = H;
+      qp_.d[i].segment<4>(L.cone_row).noalias() = H * port;
+    }
+  }
+}
+
+
+}  // namespace rvd::guidance

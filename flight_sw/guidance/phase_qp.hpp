@@ -1,0 +1,102 @@
+// The three phase QPs of the dissertation as stage-wise OCP QPs (solver/ocp_qp.hpp):
+//   rendezvous (eq 3.7), approach (eq 3.10), docking (eq 3.14), plus the 1-norm rendezvous (eq 2.10).
+// Costs use the dissertation's ||e||_Q^2 = e'Qe, so the OCP's 1/2 e'Qe gets 2Q. Soft penalties
+// lambda 1'(H rho)_+ become slack inputs s >= 0, s >= H rho with linear cost lambda.
+// State constraints are put on stages 1..N: x_0 is the measurement, a constraint on it could only make
+// the QP infeasible. A builder allocates once; build() refills values in place (no heap allocation).
+#pragma once
+
+#include <array>
+#include <vector>
+
+#include "flight_sw/guidance/params.hpp"
+#include "flight_sw/guidance/target.hpp"
+#include "flight_sw/solver/ocp_qp.hpp"
+
+namespace rvd::guidance {
+
+// Rotating keep-out hyperplanes (eqs 3.5-3.6): unit normals n_1..n_N that turn from the chaser's
+// direction towards `axis` in equal steps, each step capped at `max_step_rad`.
+struct KeepoutPlanes {
+  Eigen::Vector3d rotation_axis = Eigen::Vector3d::UnitZ();  // n_{i+1} = Rot(rotation_axis, step) n_i
+  double step_rad = 0.0;
+  double total_rad = 0.0;   // angle still to go to reach the axis along the chosen way
+  bool natural_way = false;  // true when the longer, natural-motion way was chosen
+};
+KeepoutPlanes plan_keepout_rotation(const Eigen::Vector3d& rho_m, const Eigen::Vector3d& axis, int N,
+                                    double max_step_rad, KeepoutDirection direction);
+
+class PhaseQp {
+ public:
+  // Input columns and inequality rows of one stage; -1 when the block is absent.
+  struct StageLayout {
+    int slack_col = -1, t_col = -1, w_col = -1, elastic_col = -1;
+    int box_row = -1, keepout_row = -1, cone_row = -1, t_row = -1, w_row = -1, vel_row = -1, elastic_row = -1;
+    int nu = 0, nc = 0;
+  };
+  StageLayout stage(int i) const;  // blocks follow a fixed order; each present block takes the next columns/rows
+
+  // recovery = true builds the same QP with the hard state constraints (keep-out plane, overshoot plane,
+  // docking cone and |v|_inf) made elastic: the QP the guidance solves when the nominal one is infeasible.
+  PhaseQp(Phase phase, const GuidanceParams& params, bool recovery = false);
+
+  // Fill the QP for the chaser state x0 (LVLH) with the target as it is at the solve time.
+  void build(const Vector6d& x0, const TargetState& target);
+
+  Phase phase() const { return phase_; }
+  int N() const { return N_; }
+  double Ts_s() const { return Ts_; }
+  double u_max_mps() const { return u_max_; }
+  const solver::OcpQp& qp() const { return qp_; }
+  const Vector6d& x0() const { return x0_; }  // the state of the last build
+  const solver::OcpQpDims& dims() const { return qp_.dims; }
+  const Matrix6d& A() const { return A_; }
+  const Matrix63d& B() const { return B_; }
+  const Matrix6d& terminal_weight() const { return Qf_; }  // dissertation units (cost e'Qf e)
+
+  // Geometry of the last build (for tests and telemetry).
+  const std::vector<Eigen::Vector3d>& keepout_normals() const { return keepout_normals_; }  // N+1, [0] unused
+  double keepout_radius_used_m() const { return keepout_radius_used_; }
+  const KeepoutPlanes& keepout_plan() const { return keepout_plan_; }
+  const std::vector<Vector6d>& reference() const { return reference_; }  // set point / port track, N+1
+
+  // Column and row layout, so tests can find the blocks they check.
+  int slack_offset(int i) const;           // first cone-slack input on this stage, -1 if none
+  int keepout_row(int i) const;            // keep-out / overshoot row, -1 if none
+  int cone_row(int i) const;               // first row of the cone (slack rows or hard cone rows), -1 if none
+  int velocity_row(int i) const;           // first of the 6 |v|_inf rows (docking), -1 if none
+  int elastic_offset(int i) const;         // the recovery QP's elastic input, -1 if none
+  bool recovery() const { return recovery_; }
+
+ private:
+  void build_rendezvous(const Vector6d& x0, const TargetState& target);
+  void build_rendezvous_one_norm(const Vector6d& x0, const TargetState& target);
+  void build_approach(const Vector6d& x0, const TargetState& target);
+  void build_docking(const Vector6d& x0, const TargetState& target);
+  void fill_input_box(int stage);
+  void fill_keepout(const Vector6d& x0, const TargetState& target);
+  void fill_setpoints(const TargetState& target, double range_m);
+
+  Phase phase_;
+  GuidanceParams params_;
+  bool recovery_ = false;
+  bool one_norm_ = false;
+  bool cone_slacks_ = false;
+  int N_ = 0;
+  double Ts_ = 0.0, u_max_ = 0.0, n_ = 0.0;
+  Matrix6d A_, Qw_, Qf_;
+  Vector6d x0_ = Vector6d::Zero();
+  Matrix63d B_;
+  Eigen::Vector3d Rw_;
+  solver::OcpQp qp_;
+  std::vector<Eigen::Vector3d> keepout_normals_;
+  std::vector<Vector6d> reference_;
+  double keepout_radius_used_ = 0.0;
+  KeepoutPlanes keepout_plan_;
+};
+
+// Solution of the discrete algebraic Riccati equation P = Q + A'PA - A'PB (R + B'PB)^-1 B'PA
+// (value iteration; used once per phase at construction for TerminalWeight::Dare).
+Matrix6d solve_dare(const Matrix6d& A, const Matrix63d& B, const Matrix6d& Q, const Eigen::Matrix3d& R);
+
+}  // namespace rvd::guidance

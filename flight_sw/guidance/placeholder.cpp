@@ -1,1 +1,0 @@
-// guidance component: sources arrive with its issue.

@@ -1,0 +1,163 @@
+// Phase QP builders: shapes, dynamics, and constraint rows against geometry computed here.
+#include <doctest/doctest.h>
+
+#include <cmath>
+
+#include "flight_sw/guidance/phase_qp.hpp"
+
+using namespace rvd::guidance;
+
+namespace {
+const double kDeg = M_PI / 180.0;
+TargetState vbar_target(double spin_deg_s = 0.0) {
+  TargetState t;
+  t.q_lvlh_body = Eigen::AngleAxisd(-90.0 * kDeg, Eigen::Vector3d::UnitZ());
+  t.omega_body_rad_s = Eigen::Vector3d(0, 0, spin_deg_s * kDeg);
+  return t;
+}
+Vector6d state(double x, double y, double z, double vx, double vy, double vz) {
+  Vector6d s;
+  s << x, y, z, vx, vy, vz;
+  return s;
+}
+}  // namespace
+
+TEST_CASE("every phase QP is consistent, with the CW dynamics and the Table 3.1 horizons") {
+  GuidanceParams p;
+  const double n = p.mean_motion_rad_s();
+  for (Phase ph : {Phase::Rendezvous, Phase::Approach, Phase::Docking}) {
+    for (bool recovery : {false, true}) {
+      PhaseQp b(ph, p, recovery);
+      b.build(state(140, -1580, 60, -0.9, -0.32, 0), vbar_target());
+      CHECK(b.qp().validate().empty());
+      CHECK(b.N() == p.phase(ph).N);
+      Matrix6d A;
+      Matrix63d B;
+      cw_impulsive_model(n, p.phase(ph).Ts_s, A, B);
+      for (int i = 0; i < b.N(); ++i) {
+        CHECK((b.qp().A[i] - A).cwiseAbs().maxCoeff() == 0.0);
+        CHECK((b.qp().B[i].leftCols<3>() - B).cwiseAbs().maxCoeff() == 0.0);
+        CHECK(b.qp().B[i].rightCols(b.dims().nu[i] - 3).isZero(0.0));  // slacks do not move the chaser
+        // |u|_inf <= u_max as +-I rows on the delta-v.
+        CHECK(b.qp().d[i].head<6>().isConstant(p.phase(ph).u_max_mps));
+      }
+    }
+  }
+}
+
+TEST_CASE("rendezvous: keep-out rows are -n_i' rho <= -r1 with unit normals turning at most n Ts per step") {
+  GuidanceParams p;
+  PhaseQp b(Phase::Rendezvous, p);
+  const Vector6d x = state(-300, 250, 40, 0.1, 0.2, 0);
+  b.build(x, vbar_target());
+  const double cap = p.mean_motion_rad_s() * p.rendezvous.Ts_s;
+  for (int i = 1; i <= b.N(); ++i) {
+    const int row = b.keepout_row(i);
+    REQUIRE(row >= 0);
+    const Eigen::Vector3d n_i = -b.qp().C[i].block<1, 3>(row, 0).transpose();
+    CHECK(n_i.norm() == doctest::Approx(1.0));
+    CHECK(b.qp().d[i](row) == doctest::Approx(-p.keepout_radius_m));
+    const Eigen::Vector3d n_prev = i == 1 ? Eigen::Vector3d(x.head<3>().normalized()) : Eigen::Vector3d(-b.qp().C[i - 1].block<1, 3>(b.keepout_row(i - 1), 0).transpose());
+    CHECK(std::acos(std::min(1.0, n_i.dot(n_prev))) <= cap + 1e-12);
+  }
+  CHECK(b.keepout_row(0) == -1);  // x_0 is measured, never constrained
+  // Terminal cone penalty: s >= H rho_N, s >= 0, cost lambda per slack.
+  const int s = b.slack_offset(b.N());
+  REQUIRE(s >= 0);
+  CHECK(b.qp().r[b.N()].segment<4>(s).isConstant(p.rendezvous.lambda));
+}
+
+TEST_CASE("rendezvous set point sits on the docking axis at r1 and rotates with the target") {
+  GuidanceParams p;
+  PhaseQp b(Phase::Rendezvous, p);
+  b.build(state(140, -1580, 60, 0, 0, 0), vbar_target(0.25));
+  const double w = 0.25 * kDeg;
+  for (int i : {0, 7, 30}) {
+    const double ang = -90.0 * kDeg + w * i * p.rendezvous.Ts_s;
+    const Eigen::Vector3d expect = p.keepout_radius_m * Eigen::Vector3d(std::cos(ang), std::sin(ang), 0);
+    CHECK((b.reference()[i].head<3>() - expect).norm() < 1e-9);
+    CHECK((b.reference()[i].tail<3>() - Eigen::Vector3d(0, 0, w).cross(expect)).norm() < 1e-12);
+    // q_i = -Q_i xs_i (the OCP's 1/2 x'Qx + q'x is the dissertation's (x - xs)'Q(x - xs) up to a constant).
+    CHECK((b.qp().q[i] + b.qp().Q[i] * b.reference()[i]).norm() < 1e-9);
+  }
+}
+
+TEST_CASE("approach: overshoot plane along the axis at r2 and a pyramid penalty on every stage") {
+  GuidanceParams p;
+  PhaseQp b(Phase::Approach, p);
+  b.build(state(10, -150, 0, 0, 0.5, 0), vbar_target());
+  const Eigen::Vector3d axis(0, -1, 0);
+  for (int i = 1; i <= b.N(); ++i) {
+    const int row = b.keepout_row(i);
+    CHECK((-b.qp().C[i].block<1, 3>(row, 0).transpose() - axis).norm() < 1e-12);
+    CHECK(b.qp().d[i](row) == doctest::Approx(-p.approach_stop_m));
+    const Eigen::Matrix<double, 4, 3> H = b.qp().C[i].block<4, 3>(b.cone_row(i), 0);
+    CHECK((H * axis).maxCoeff() < 0.0);  // the axis is inside
+    CHECK(b.qp().r[i].segment<4>(b.slack_offset(i)).isConstant(p.approach.lambda));
+  }
+}
+
+TEST_CASE("docking: hard pyramid with its apex at the port, and |v|_inf rows") {
+  GuidanceParams p;
+  PhaseQp b(Phase::Docking, p);
+  const TargetState t = vbar_target(0.25);
+  b.build(state(1, -25, 0, 0, 0.05, 0), t);
+  for (int i = 1; i <= b.N(); ++i) {
+    const Eigen::Quaterniond q_i = attitude_after(t, i * p.docking.Ts_s);
+    const Eigen::Vector3d port = q_i * p.port_body_m, axis = q_i * Eigen::Vector3d::UnitX();
+    const Eigen::Matrix<double, 4, 3> H = b.qp().C[i].block<4, 3>(b.cone_row(i), 0);
+    const Eigen::Vector4d d = b.qp().d[i].segment<4>(b.cone_row(i));
+    // Points on the axis beyond the port satisfy H rho <= d; the port itself is the apex (equality).
+    CHECK((H * (port + 10.0 * axis) - d).maxCoeff() < 0.0);
+    CHECK((H * port - d).cwiseAbs().maxCoeff() < 1e-12);
+    // A point 9 deg off the axis (outside the 8 deg pyramid) is cut off.
+    const Eigen::Vector3d off = port + 10.0 * (std::cos(9 * kDeg) * axis + std::sin(9 * kDeg) * Eigen::Vector3d::UnitZ());
+    CHECK((H * off - d).maxCoeff() > 0.0);
+    const int v = b.velocity_row(i);
+    CHECK(b.qp().C[i].block<3, 3>(v, 3).isIdentity());
+    CHECK(b.qp().d[i].segment<6>(v).isConstant(p.v_max_mps));
+    CHECK((b.reference()[i].head<3>() - port).norm() < 1e-12);
+  }
+}
+
+TEST_CASE("recovery QP: one elastic input per stage relaxes exactly the hard state rows") {
+  GuidanceParams p;
+  PhaseQp b(Phase::Docking, p, true);
+  b.build(state(1, -25, 0, 0, 0.05, 0), vbar_target());
+  for (int i = 1; i <= b.N(); ++i) {
+    const int e = b.elastic_offset(i);
+    REQUIRE(e >= 0);
+    CHECK(b.qp().r[i](e) == p.recovery_weight);
+    for (int k = 0; k < 4; ++k) CHECK(b.qp().D[i](b.cone_row(i) + k, e) == -1.0);
+    for (int k = 0; k < 6; ++k) CHECK(b.qp().D[i](b.velocity_row(i) + k, e) == -1.0);
+    if (i < b.N()) CHECK(b.qp().D[i].col(e).head<6>().isZero(0.0));  // the thrust box stays hard
+  }
+}
+
+TEST_CASE("1-norm rendezvous: an LP (no quadratic terms) with |Q e| and |R u| epigraph rows") {
+  GuidanceParams p;
+  p.rendezvous_objective = RendezvousObjective::OneNorm;
+  PhaseQp b(Phase::Rendezvous, p);
+  b.build(state(140, -1580, 60, -0.9, -0.32, 0), vbar_target());
+  CHECK(b.qp().validate().empty());
+  for (int i = 0; i <= b.N(); ++i) {
+    CHECK(b.qp().Q[i].isZero(0.0));
+    CHECK(b.qp().R[i].isZero(0.0));
+  }
+  CHECK(b.dims().nu[0] == 3 + 6 + 3);
+}
+
+TEST_CASE("terminal weight: the DARE solution satisfies the Riccati equation") {
+  GuidanceParams p;
+  p.docking.terminal_weight = TerminalWeight::Dare;
+  PhaseQp b(Phase::Docking, p);
+  const Matrix6d P = b.terminal_weight();
+  const Matrix6d Q = p.docking.Q_diag.asDiagonal();
+  const Eigen::Matrix3d R = p.docking.R_diag.asDiagonal();
+  const Matrix6d& A = b.A();
+  const Matrix63d& B = b.B();
+  const Matrix6d rhs = Q + A.transpose() * P * A -
+                       A.transpose() * P * B * (R + B.transpose() * P * B).inverse() * B.transpose() * P * A;
+  CHECK((rhs - P).cwiseAbs().maxCoeff() < 1e-6 * P.cwiseAbs().maxCoeff());
+  CHECK((b.qp().Q[b.N()] - 2.0 * P).cwiseAbs().maxCoeff() < 1e-9 * P.cwiseAbs().maxCoeff());
+}

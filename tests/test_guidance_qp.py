@@ -1,0 +1,288 @@
+"""The phase QP builders checked independently: each QP solved by ProxSuite (dense, from the lists the
+builder returns) gives the same first delta-v as the Fast MPC solver and as the Guidance step itself,
+and the constraint rows match geometry computed here (keep-out normals, pyramid faces, port)."""
+import math
+
+import numpy as np
+import pytest
+
+import flight_sw as fsw
+
+DEG = math.pi / 180.0
+
+
+# ---------------------------------------------------------------- helpers (also used by other guidance tests)
+def quat_about_z(angle_rad):
+    return np.array([math.cos(angle_rad / 2), 0.0, 0.0, math.sin(angle_rad / 2)])
+
+
+def rotate(q, v):
+    """Rotate v by the unit quaternion q = [w, x, y, z] (written out: v' = v + 2w (u x v) + 2 u x (u x v))."""
+    w, u = q[0], np.asarray(q[1:])
+    t = 2.0 * np.cross(u, v)
+    return np.asarray(v) + w * t + np.cross(u, t)
+
+
+def quat_after(q, omega_body, dt):
+    """q (x) exp(omega dt / 2): the attitude dt later under a constant body rate."""
+    rate = np.linalg.norm(omega_body)
+    if rate * dt == 0:
+        return np.asarray(q, float)
+    axis = np.asarray(omega_body) / rate
+    h = 0.5 * rate * dt
+    dq = np.r_[math.cos(h), math.sin(h) * axis]
+    w1, v1 = q[0], np.asarray(q[1:])
+    w2, v2 = dq[0], dq[1:]
+    return np.r_[w1 * w2 - v1 @ v2, w1 * v2 + w2 * v1 + np.cross(v1, v2)]
+
+
+def in_pyramid(q, rel, half_angle_rad, tol=0.0):
+    """True when the LVLH vector rel (from the apex) is inside the four-sided pyramid around body +x:
+    in body axes, x tan(a) >= |y| and >= |z| (up to tol metres measured along the face normals)."""
+    qc = np.array([q[0], -q[1], -q[2], -q[3]])
+    b = rotate(qc, rel)
+    c, s = math.cos(half_angle_rad), math.sin(half_angle_rad)
+    return max(abs(b[1]) * c - b[0] * s, abs(b[2]) * c - b[0] * s) <= tol
+
+
+def ocp_to_dense(qp):
+    """Stack the stage-wise QP into z = [x_0..x_N, u_0..u_N]: min 1/2 z'Hz + g'z, Ae z = be, Ci z <= ci."""
+    A, B, b, Q, q, R, r, C, D, d, x0 = (qp[k] for k in ("A", "B", "b", "Q", "q", "R", "r", "C", "D", "d", "x0"))
+    N, nx = len(A), len(x0)
+    nu = [np.asarray(Ri).shape[0] for Ri in R]
+    xo = [i * nx for i in range(N + 1)]
+    uo = list(np.cumsum([(N + 1) * nx] + nu[:-1]))
+    n = (N + 1) * nx + sum(nu)
+    H, g = np.zeros((n, n)), np.zeros(n)
+    Ae, be = np.zeros(((N + 1) * nx, n)), np.zeros((N + 1) * nx)
+    Ae[:nx, :nx], be[:nx] = np.eye(nx), x0
+    rows, ub = [], []
+    for i in range(N + 1):
+        H[xo[i]:xo[i] + nx, xo[i]:xo[i] + nx], g[xo[i]:xo[i] + nx] = Q[i], q[i]
+        H[uo[i]:uo[i] + nu[i], uo[i]:uo[i] + nu[i]], g[uo[i]:uo[i] + nu[i]] = R[i], r[i]
+        if i < N:
+            k = (i + 1) * nx
+            Ae[k:k + nx, xo[i + 1]:xo[i + 1] + nx] = np.eye(nx)
+            Ae[k:k + nx, xo[i]:xo[i] + nx] = -A[i]
+            Ae[k:k + nx, uo[i]:uo[i] + nu[i]] = -B[i]
+            be[k:k + nx] = b[i]
+        if len(d[i]):
+            G = np.zeros((len(d[i]), n))
+            G[:, xo[i]:xo[i] + nx], G[:, uo[i]:uo[i] + nu[i]] = C[i], D[i]
+            rows.append(G)
+            ub.append(d[i])
+    return H, g, Ae, be, np.vstack(rows), np.concatenate(ub), xo, uo, nu
+
+
+def solve_proxsuite(qp):
+    """Reference solution by ProxSuite's dense solver; returns (status, u list, x list)."""
+    import proxsuite
+
+    H, g, Ae, be, Ci, ci, xo, uo, nu = ocp_to_dense(qp)
+    s = proxsuite.proxqp.dense.QP(len(g), Ae.shape[0], Ci.shape[0])
+    s.settings.eps_abs, s.settings.eps_rel, s.settings.max_iter = 1e-9, 0.0, 20000
+    # The default infeasibility thresholds (1e-4) misjudge these QPs (km-scale states, 1e4 penalties) as
+    # infeasible; Clarabel and the Fast MPC solver both solve them. Tight thresholds make ProxSuite converge.
+    s.settings.eps_primal_inf = s.settings.eps_dual_inf = 1e-12
+    s.init(H, g, Ae, be, Ci, np.full(len(ci), -1e20), ci)
+    s.solve()
+    z = s.results.x
+    return (str(s.results.info.status).split(".")[-1], [z[o:o + m] for o, m in zip(uo, nu)],
+            [z[o:o + 6] for o in xo])
+
+
+def solve_clarabel(qp):
+    """Second reference (an interior point method) for the recovery QPs: on their large elastic costs ProxSuite
+    reaches its iteration cap (with the same first input)."""
+    import clarabel
+    import scipy.sparse as sp
+
+    H, g, Ae, be, Ci, ci, xo, uo, nu = ocp_to_dense(qp)
+    s = clarabel.DefaultSettings()
+    s.verbose = False
+    s.tol_gap_abs = s.tol_gap_rel = s.tol_feas = 1e-10
+    sol = clarabel.DefaultSolver(sp.csc_matrix(np.triu(H)), g, sp.csc_matrix(np.vstack([Ae, Ci])), np.r_[be, ci],
+                                 [clarabel.ZeroConeT(Ae.shape[0]), clarabel.NonnegativeConeT(Ci.shape[0])], s).solve()
+    z = np.array(sol.x)
+    return str(sol.status), [z[o:o + m] for o, m in zip(uo, nu)], [z[o:o + 6] for o in xo]
+
+
+# ---------------------------------------------------------------- the QPs checked
+VBAR = quat_about_z(-90 * DEG)
+RBAR = np.array([1.0, 0, 0, 0])
+SPIN = np.array([0, 0, 0.25 * DEG])
+ZERO = np.zeros(3)
+
+
+def variant(**kw):
+    p = fsw.GuidanceParams()
+    for k, v in kw.items():
+        obj = p
+        *path, last = k.split("__")
+        for part in path:
+            obj = getattr(obj, part)
+        setattr(obj, last, v)
+    return p
+
+
+CASES = [  # (id, params, phase, x, q, omega)
+    ("rdv_far_vbar", variant(), fsw.Phase.Rendezvous, [140, -1580, 60, -0.9, -0.32, 0], VBAR, ZERO),
+    ("rdv_far_rbar", variant(), fsw.Phase.Rendezvous, [140, -1580, 60, -0.9, -0.32, 0], RBAR, ZERO),
+    ("rdv_sphere_side", variant(), fsw.Phase.Rendezvous, [-180, 150, 30, 0.4, 0.3, 0], VBAR, ZERO),
+    ("rdv_rotating", variant(), fsw.Phase.Rendezvous, [300, -700, 0, -0.2, 0.4, 0], VBAR, SPIN),
+    ("rdv_no_setpoint", variant(rendezvous_use_setpoint=False), fsw.Phase.Rendezvous, [-600, 900, 50, 0, 0, 0], VBAR, ZERO),
+    ("rdv_N45_dare", variant(rendezvous__N=45, rendezvous__terminal_weight=fsw.TerminalWeight.Dare),
+     fsw.Phase.Rendezvous, [140, -1580, 60, -0.9, -0.32, 0], VBAR, ZERO),
+    ("app_vbar", variant(), fsw.Phase.Approach, [12, -190, 5, -0.05, 0.4, 0], VBAR, ZERO),
+    ("app_rbar_N5", variant(approach__N=5), fsw.Phase.Approach, [150, 20, -4, -0.3, 0.1, 0], RBAR, ZERO),
+    ("app_rotating_N30", variant(approach__N=30), fsw.Phase.Approach, [60, -170, 0, 0.2, 0.6, 0], VBAR, SPIN),
+    ("dock_vbar", variant(), fsw.Phase.Docking, [0.5, -29, 0.3, 0.0, 0.02, 0], VBAR, ZERO),
+    ("dock_rotating_N30", variant(docking__N=30), fsw.Phase.Docking, [1.0, -25, 0.0, 0.06, 0.05, 0], VBAR, SPIN),
+]
+
+
+@pytest.mark.parametrize("cid,params,phase,x,q,w", CASES, ids=[c[0] for c in CASES])
+def test_first_input_agrees_with_proxsuite_fast_mpc_and_the_guidance(cid, params, phase, x, q, w):
+    qp = fsw.build_phase_qp(params, phase, x, q, w)
+    status, u_ref, _ = solve_proxsuite(qp)
+    assert status == "PROXQP_SOLVED"
+    fast = fsw.solve_ocp_qp(**qp, max_iter=300)
+    assert fast.status == "solved"
+    np.testing.assert_allclose(fast.u[0][:3], u_ref[0][:3], atol=1e-6)
+    # The guidance builds the same QP internally: its command is the same first delta-v (clipped to the box).
+    g = fsw.Guidance(params)
+    g.reset(phase)
+    cmd = g.step(fsw.NavInput(0, 0.0, x, q, w))
+    if cmd.status == fsw.StepStatus.Ok:
+        u_max = params.phase(phase).u_max_mps
+        np.testing.assert_allclose(cmd.dv_cmd_mps, np.clip(u_ref[0][:3], -u_max, u_max), atol=1e-6)
+    else:  # the guidance's own solver did not converge here: it must say so, not fake a command
+        assert cmd.status in (fsw.StepStatus.ShiftedPlan, fsw.StepStatus.ZeroThrust)
+
+
+def test_one_norm_rendezvous_is_an_lp_with_the_same_answer():
+    p = variant(rendezvous_objective=fsw.RendezvousObjective.OneNorm)
+    x = [140, -1580, 60, -0.9, -0.32, 0]
+    qp = fsw.build_phase_qp(p, fsw.Phase.Rendezvous, x, VBAR)
+    assert all(not np.any(Q) for Q in qp["Q"]) and all(not np.any(R) for R in qp["R"])
+    status, u_ref, x_ref = solve_proxsuite(qp)
+    assert status == "PROXQP_SOLVED"
+    fast = fsw.solve_ocp_qp(**qp, max_iter=300)
+    assert fast.status == "solved"
+    # An LP may have several optima: compare the objective g'z of both solutions.
+    _, g, *_, xo, uo, nu = ocp_to_dense(qp)
+
+    def stacked(xs, us):
+        z = np.zeros(len(g))
+        for o, v in zip(xo, xs):
+            z[o:o + 6] = v
+        for o, v in zip(uo, us):
+            z[o:o + len(v)] = v
+        return z
+
+    assert g @ stacked(fast.x, fast.u) == pytest.approx(g @ stacked(x_ref, u_ref), rel=1e-6)
+    assert np.abs(fast.u[0][:3]).max() <= p.rendezvous.u_max_mps + 1e-9
+
+
+def test_recovery_qp_is_always_feasible_and_agrees_with_clarabel():
+    # 40 m out on the V-bar closing at 2 m/s: the approach QP's overshoot plane cannot hold.
+    p = fsw.GuidanceParams()
+    x = [0, -40, 0, 0, 2.0, 0]
+    nominal = fsw.build_phase_qp(p, fsw.Phase.Approach, x, VBAR)
+    assert fsw.solve_ocp_qp(**nominal).status == "infeasible"
+    assert solve_clarabel(nominal)[0] == "PrimalInfeasible"
+    b = fsw.PhaseQp(fsw.Phase.Approach, p, recovery=True)
+    qp = b.build(x, VBAR)
+    status, u_ref, _ = solve_clarabel(qp)
+    assert status == "Solved"
+    fast = fsw.solve_ocp_qp(**qp, max_iter=400)
+    assert fast.status == "solved"
+    np.testing.assert_allclose(fast.u[0][:3], u_ref[0][:3], atol=1e-5)
+    assert u_ref[0][1] == pytest.approx(-p.approach.u_max_mps, abs=1e-6)  # brakes along the axis at the limit
+
+
+# ---------------------------------------------------------------- constraint rows against geometry
+def test_keepout_normals_unit_and_turning_at_most_n_ts_per_step_towards_the_axis():
+    p = fsw.GuidanceParams()
+    n_ts = p.mean_motion_rad_s() * p.rendezvous.Ts_s
+    for x, q, w in [([140, -1580, 60, -0.9, -0.32, 0], RBAR, ZERO), ([-250, 40, 0, 0, 0, 0], VBAR, ZERO),
+                    ([300, -700, 0, -0.2, 0.4, 0], VBAR, SPIN), ([-120, -190, 0, 0, 0, 0], VBAR, ZERO)]:
+        b = fsw.PhaseQp(fsw.Phase.Rendezvous, p)
+        qp = b.build(x, q, w)
+        normals = [np.asarray(x[:3]) / np.linalg.norm(x[:3])]
+        for i in range(1, b.N + 1):
+            row = b.keepout_row(i)
+            nrm = -qp["C"][i][row, :3]
+            assert np.linalg.norm(nrm) == pytest.approx(1.0, abs=1e-12)
+            assert not np.any(qp["C"][i][row, 3:]) and not np.any(qp["D"][i][row])
+            assert qp["d"][i][row] == pytest.approx(-min(p.keepout_radius_m, np.linalg.norm(x[:3])))
+            normals.append(nrm)
+        steps = [math.acos(min(1.0, a @ c)) for a, c in zip(normals, normals[1:])]
+        assert max(steps) <= n_ts + 1e-12
+        assert max(steps) - min(steps) < 1e-9  # equal steps
+        # The normals turn in one plane (about one axis), towards the cone axis at t_N.
+        axis_N = rotate(quat_after(q, w, b.N * b.Ts_s), [1.0, 0, 0])
+        angle_to_axis = [math.acos(np.clip(v @ axis_N, -1, 1)) for v in normals]
+        if b.keepout_natural_way:
+            assert b.keepout_rotation_axis[2] < 0  # natural relative motion circulates about -z
+        else:
+            assert all(a2 <= a1 + 1e-12 for a1, a2 in zip(angle_to_axis, angle_to_axis[1:]))
+        if b.keepout_total_rad <= b.N * n_ts:  # reachable within the horizon: the last plane is the axis
+            np.testing.assert_allclose(normals[-1], axis_N, atol=1e-9)
+
+
+@pytest.mark.parametrize("phase,half_deg", [(fsw.Phase.Rendezvous, 15.0), (fsw.Phase.Approach, 15.0), (fsw.Phase.Docking, 8.0)])
+@pytest.mark.parametrize("q,w", [(VBAR, ZERO), (RBAR, ZERO), (VBAR, SPIN)], ids=["vbar", "rbar", "spin"])
+def test_cone_rows_contain_the_axis_and_cut_at_the_half_angle(phase, half_deg, q, w):
+    p = fsw.GuidanceParams()
+    b = fsw.PhaseQp(phase, p)
+    qp = b.build([5.0, -100.0, 3.0, 0, 0, 0], q, w)
+    stages = [b.N] if phase == fsw.Phase.Rendezvous else range(1, b.N + 1)
+    for i in stages:
+        qi = quat_after(q, w, i * b.Ts_s)
+        axis = rotate(qi, [1.0, 0, 0])
+        apex = rotate(qi, np.asarray(p.port_body_m)) if phase == fsw.Phase.Docking else np.zeros(3)
+        r0 = b.cone_row(i)
+        H, d = qp["C"][i][r0:r0 + 4, :3], qp["d"][i][r0:r0 + 4]
+        if phase != fsw.Phase.Docking:
+            d = np.zeros(4)  # soft: H rho - s <= 0
+        np.testing.assert_allclose(np.linalg.norm(H, axis=1), 1.0, atol=1e-12)
+        assert np.all(H @ (apex + 50 * axis) - d < 0)  # the axis is inside
+        assert np.all(H @ axis <= -math.sin(half_deg * DEG) + 1e-12)
+        for side in (rotate(qi, [0, 1.0, 0]), rotate(qi, [0, 0, 1.0])):
+            for sgn in (1, -1):
+                for ang, inside in ((half_deg - 0.5, True), (half_deg + 0.5, False)):
+                    pt = apex + 50 * (math.cos(ang * DEG) * axis + sgn * math.sin(ang * DEG) * side)
+                    assert (np.max(H @ pt - d) <= 0) == inside
+                    assert in_pyramid(qi, pt - apex, half_deg * DEG) == inside
+
+
+def test_docking_tracks_the_rotating_port_and_bounds_velocity():
+    p = fsw.GuidanceParams()
+    b = fsw.PhaseQp(fsw.Phase.Docking, p)
+    qp = b.build([1.0, -25, 0.0, 0.06, 0.05, 0], VBAR, SPIN)
+    ref = np.asarray(b.reference)
+    for i in range(b.N + 1):
+        qi = quat_after(VBAR, SPIN, i * b.Ts_s)
+        port = rotate(qi, [0.5, 0, 0])
+        np.testing.assert_allclose(ref[i, :3], port, atol=1e-12)
+        np.testing.assert_allclose(ref[i, 3:], np.cross(rotate(VBAR, SPIN), port), atol=1e-12)
+        np.testing.assert_allclose(qp["q"][i], -qp["Q"][i] @ ref[i], atol=1e-9)
+        if i >= 1:
+            v = b.velocity_row(i)
+            np.testing.assert_array_equal(qp["C"][i][v:v + 3, 3:], np.eye(3))
+            np.testing.assert_array_equal(qp["C"][i][v + 3:v + 6, 3:], -np.eye(3))
+            np.testing.assert_array_equal(qp["d"][i][v:v + 6], p.v_max_mps)
+
+
+def test_bad_input_to_the_builder_is_refused():
+    p = fsw.GuidanceParams()
+    with pytest.raises(ValueError):
+        fsw.build_phase_qp(p, fsw.Phase.Docked, [0, -10, 0, 0, 0, 0])
+    with pytest.raises(ValueError):
+        fsw.build_phase_qp(p, fsw.Phase.Approach, [0, float("nan"), 0, 0, 0, 0])
+    with pytest.raises(ValueError):
+        fsw.build_phase_qp(p, fsw.Phase.Approach, [0, -10, 0, 0, 0, 0], [0, 0, 0, 0])
+    p.docking.N = 0
+    with pytest.raises(ValueError, match="docking.N"):
+        fsw.build_phase_qp(p, fsw.Phase.Docking, [0, -10, 0, 0, 0, 0])
