@@ -1,5 +1,275 @@
+// Python binding of the Fast MPC solver: solve_ocp_qp() for one-off solves, OcpSolver for repeated
+// solves with warm start (the flight software's use).
+#include <pybind11/eigen.h>
 #include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <optional>
+#include <sstream>
+#include <string>
+
+#include "flight_sw/solver/fast_mpc.hpp"
 
 namespace py = pybind11;
+using namespace rvd::solver;
 
-void bind_solver(py::module_& m) { (void)m; }
+namespace {
+
+struct SolveResult {
+  Matrix x;                // (N+1) x nx
+  py::list u;              // N+1 arrays, u[N] may be empty
+  py::list lam;            // N+1 arrays of inequality multipliers
+  Matrix pi;               // N x nx dynamics multipliers
+  std::string status;
+  int iterations = 0;
+  double objective = 0.0, primal_residual = 0.0, dual_residual = 0.0, solve_time_us = 0.0;
+};
+
+Mode parse_mode(const std::string& mode) {
+  if (mode == "converged") return Mode::Converged;
+  if (mode == "fixed_barrier") return Mode::FixedBarrier;
+  throw py::value_error("mode must be 'converged' or 'fixed_barrier', got '" + mode + "'");
+}
+
+Settings make_settings(const std::string& mode, double tol, std::optional<int> max_iter, double barrier,
+                       bool warm_start, double time_limit_us) {
+  Settings s;
+  s.mode = parse_mode(mode);
+  s.max_iter = max_iter ? *max_iter : (s.mode == Mode::FixedBarrier ? fixed_barrier_settings().max_iter : 100);
+  if (s.max_iter < 0) throw py::value_error("max_iter must be >= 0");
+  if (!(tol > 0)) throw py::value_error("tol must be > 0");
+  if (!(barrier > 0)) throw py::value_error("barrier (kappa) must be > 0");
+  if (!(time_limit_us >= 0)) throw py::value_error("time_limit_us must be >= 0");
+  s.tol = tol;
+  s.barrier = barrier;
+  s.warm_start = warm_start;
+  s.time_limit_us = time_limit_us;
+  return s;
+}
+
+template <class T>
+T cast_block(const py::handle& h, const char* name, size_t i) {
+  try {
+    return h.cast<T>();
+  } catch (const py::cast_error&) {
+    std::ostringstream msg;
+    msg << name << "[" << i << "] is not convertible to a float " << (T::ColsAtCompileTime == 1 ? "vector" : "matrix");
+    throw py::value_error(msg.str());
+  }
+}
+
+template <class T>
+std::vector<T> cast_list(const py::sequence& seq, const char* name) {
+  std::vector<T> out;
+  out.reserve(seq.size());
+  for (size_t i = 0; i < seq.size(); ++i) out.push_back(cast_block<T>(seq[i], name, i));
+  return out;
+}
+
+// Builds the QP from per-stage arrays; shape errors raise ValueError (NaN is left to the solver,
+// which answers "invalid_input").
+OcpQp build_qp(const py::sequence& A, const py::sequence& B, const py::sequence& b, const py::sequence& Q,
+               const py::sequence& q, const py::sequence& R, const py::sequence& r, const py::sequence& C,
+               const py::sequence& D, const py::sequence& d) {
+  const size_t N = A.size();
+  if (N < 1) throw py::value_error("A must hold N >= 1 matrices (one per dynamics stage)");
+  std::ostringstream err;
+  if (B.size() != N || b.size() != N) err << "A, B, b need N = " << N << " entries (got " << A.size() << ", "
+                                          << B.size() << ", " << b.size() << "); ";
+  for (auto [seq, name] : {std::pair{&Q, "Q"}, {&q, "q"}, {&R, "R"}, {&r, "r"}, {&C, "C"}, {&D, "D"}, {&d, "d"}})
+    if (seq->size() != N + 1) err << name << " needs N+1 = " << N + 1 << " entries (got " << seq->size() << "); ";
+  if (!err.str().empty()) throw py::value_error(err.str());
+
+  OcpQp qp;
+  qp.A = cast_list<Matrix>(A, "A");
+  qp.B = cast_list<Matrix>(B, "B");
+  qp.b = cast_list<Vector>(b, "b");
+  qp.Q = cast_list<Matrix>(Q, "Q");
+  qp.q = cast_list<Vector>(q, "q");
+  qp.R = cast_list<Matrix>(R, "R");
+  qp.r = cast_list<Vector>(r, "r");
+  qp.C = cast_list<Matrix>(C, "C");
+  qp.D = cast_list<Matrix>(D, "D");
+  qp.d = cast_list<Vector>(d, "d");
+  OcpQpDims& dims = qp.dims;
+  dims.N = static_cast<int>(N);
+  dims.nx = static_cast<int>(qp.A[0].rows());
+  dims.nu.resize(N + 1);
+  dims.nc.resize(N + 1);
+  for (size_t i = 0; i <= N; ++i) {
+    dims.nu[i] = static_cast<int>(i < N ? qp.B[i].cols() : qp.R[i].rows());
+    dims.nc[i] = static_cast<int>(qp.C[i].rows());
+  }
+  // Shapes only: a NaN in an otherwise well-shaped QP goes to the solver, which reports it.
+  auto shape = [&](const char* name, size_t i, const Matrix& m, long rows, long cols) {
+    if (m.rows() != rows || m.cols() != cols)
+      err << name << "[" << i << "] has shape (" << m.rows() << ", " << m.cols() << "), expected (" << rows << ", "
+          << cols << "); ";
+  };
+  auto vshape = [&](const char* name, size_t i, const Vector& v, long n) {
+    if (v.size() != n) err << name << "[" << i << "] has " << v.size() << " entries, expected " << n << "; ";
+  };
+  const long nx = dims.nx;
+  for (size_t i = 0; i <= N; ++i) {
+    const long m = dims.nu[i], k = dims.nc[i];
+    if (i < N) {
+      shape("A", i, qp.A[i], nx, nx);
+      shape("B", i, qp.B[i], nx, m);
+      vshape("b", i, qp.b[i], nx);
+    }
+    shape("Q", i, qp.Q[i], nx, nx);
+    vshape("q", i, qp.q[i], nx);
+    shape("R", i, qp.R[i], m, m);
+    vshape("r", i, qp.r[i], m);
+    shape("C", i, qp.C[i], k, nx);
+    shape("D", i, qp.D[i], k, m);
+    vshape("d", i, qp.d[i], k);
+  }
+  if (!err.str().empty()) throw py::value_error("inconsistent QP shapes: " + err.str());
+  return qp;
+}
+
+SolveResult collect(const FastMpcSolver& solver) {
+  SolveResult res;
+  const Info& info = solver.info();
+  const OcpQpDims& dims = solver.dims();
+  res.status = to_string(info.status);
+  res.iterations = info.iterations;
+  res.objective = info.objective;
+  res.primal_residual = info.primal_residual;
+  res.dual_residual = info.dual_residual;
+  res.solve_time_us = info.solve_time_us;
+  const auto& x = solver.x();
+  res.x = Matrix::Zero(dims.N + 1, dims.nx);
+  res.pi = Matrix::Zero(dims.N, dims.nx);
+  for (int i = 0; i <= dims.N && i < static_cast<int>(x.size()); ++i) {
+    res.x.row(i) = x[i].transpose();
+    res.u.append(py::cast(solver.u()[i]));
+    res.lam.append(py::cast(solver.lambda()[i]));
+    if (i < dims.N) res.pi.row(i) = solver.pi()[i].transpose();
+  }
+  return res;
+}
+
+Vector cast_x0(const py::handle& x0, int nx) {
+  Vector v = cast_block<Vector>(x0, "x0", 0);
+  if (v.size() != nx) {
+    std::ostringstream msg;
+    msg << "x0 has " << v.size() << " entries, expected nx = " << nx;
+    throw py::value_error(msg.str());
+  }
+  return v;
+}
+
+// Reusable solver: dimensions fixed at construction, workspace allocated once, warm start kept.
+class PyOcpSolver {
+ public:
+  PyOcpSolver(int nx, std::vector<int> nu, std::vector<int> nc, const std::string& mode, double tol,
+              std::optional<int> max_iter, double barrier, bool warm_start, double time_limit_us)
+      : solver_(make_dims(nx, std::move(nu), std::move(nc)),
+                make_settings(mode, tol, max_iter, barrier, warm_start, time_limit_us)) {}
+
+  SolveResult solve(const py::sequence& A, const py::sequence& B, const py::sequence& b, const py::sequence& Q,
+                    const py::sequence& q, const py::sequence& R, const py::sequence& r, const py::sequence& C,
+                    const py::sequence& D, const py::sequence& d, const py::handle& x0) {
+    OcpQp qp = build_qp(A, B, b, Q, q, R, r, C, D, d);
+    const OcpQpDims& dims = solver_.dims();
+    if (qp.dims.N != dims.N || qp.dims.nx != dims.nx || qp.dims.nu != dims.nu || qp.dims.nc != dims.nc)
+      throw py::value_error("QP dimensions differ from the ones this OcpSolver was built for");
+    Vector xv = cast_x0(x0, dims.nx);
+    {
+      py::gil_scoped_release release;
+      solver_.solve(qp, xv);
+    }
+    return collect(solver_);
+  }
+  FastMpcSolver& solver() { return solver_; }
+
+ private:
+  static OcpQpDims make_dims(int nx, std::vector<int> nu, std::vector<int> nc) {
+    OcpQpDims d;
+    d.N = static_cast<int>(nu.size()) - 1;
+    d.nx = nx;
+    d.nu = std::move(nu);
+    d.nc = std::move(nc);
+    const std::string err = d.validate();
+    if (!err.empty()) throw py::value_error("invalid OcpSolver dimensions: " + err);
+    return d;
+  }
+  FastMpcSolver solver_;
+};
+
+}  // namespace
+
+void bind_solver(py::module_& m) {
+  py::class_<SolveResult>(m, "OcpQpResult", "Result of an OCP QP solve (SI units as given in the data).")
+      .def_readonly("x", &SolveResult::x, "states, (N+1) x nx; x[0] is the given initial state")
+      .def_readonly("u", &SolveResult::u, "inputs, list of N+1 arrays (u[N] may be empty)")
+      .def_readonly("lam", &SolveResult::lam, "inequality multipliers, list of N+1 arrays")
+      .def_readonly("pi", &SolveResult::pi, "dynamics multipliers, N x nx")
+      .def_readonly("status", &SolveResult::status,
+                    "'solved', 'max_iter', 'infeasible', 'invalid_input', 'numerical_error' or 'time_limit'")
+      .def_readonly("iterations", &SolveResult::iterations)
+      .def_readonly("objective", &SolveResult::objective, "objective at the returned iterate")
+      .def_readonly("primal_residual", &SolveResult::primal_residual,
+                    "inf-norm of the dynamics residual and of the inequality violation")
+      .def_readonly("dual_residual", &SolveResult::dual_residual, "inf-norm of the stationarity residual")
+      .def_readonly("solve_time_us", &SolveResult::solve_time_us, "wall time of the C++ solve, microseconds")
+      .def("__repr__", [](const SolveResult& r) {
+        std::ostringstream s;
+        s << "OcpQpResult(status='" << r.status << "', iterations=" << r.iterations << ", objective=" << r.objective
+          << ")";
+        return s.str();
+      });
+
+  m.def(
+      "solve_ocp_qp",
+      [](const py::sequence& A, const py::sequence& B, const py::sequence& b, const py::sequence& Q,
+         const py::sequence& q, const py::sequence& R, const py::sequence& r, const py::sequence& C,
+         const py::sequence& D, const py::sequence& d, const py::handle& x0, double tol, std::optional<int> max_iter,
+         const std::string& mode, double barrier, double time_limit_us) {
+        OcpQp qp = build_qp(A, B, b, Q, q, R, r, C, D, d);
+        Vector xv = cast_x0(x0, qp.dims.nx);
+        FastMpcSolver solver(qp.dims, make_settings(mode, tol, max_iter, barrier, false, time_limit_us));
+        {
+          py::gil_scoped_release release;
+          solver.solve(qp, xv);
+        }
+        return collect(solver);
+      },
+      py::arg("A"), py::arg("B"), py::arg("b"), py::arg("Q"), py::arg("q"), py::arg("R"), py::arg("r"),
+      py::arg("C"), py::arg("D"), py::arg("d"), py::arg("x0"), py::kw_only(), py::arg("tol") = 1e-8,
+      py::arg("max_iter") = py::none(), py::arg("mode") = "converged", py::arg("barrier") = 1e-4,
+      py::arg("time_limit_us") = 0.0,
+      R"doc(Solve the stage-wise OCP QP
+
+    minimize   sum_{i=0..N} 1/2 x_i'Q_i x_i + q_i'x_i + 1/2 u_i'R_i u_i + r_i'u_i
+    subject to x_0 = x0, x_{i+1} = A_i x_i + B_i u_i + b_i (i < N), C_i x_i + D_i u_i <= d_i (i <= N)
+
+A, B, b are lists over i = 0..N-1; Q, q, R, r, C, D, d over i = 0..N (R_N, r_N, D_N may have zero
+columns). mode 'converged' is the primal-dual interior point to relative accuracy tol;
+'fixed_barrier' is the seed's Fast MPC (log barrier weight `barrier`, infeasible-start Newton).
+max_iter defaults to 100 (converged) or 15 (fixed_barrier). Shape errors raise ValueError; NaN/Inf
+gives status 'invalid_input'.)doc");
+
+  py::class_<PyOcpSolver>(m, "OcpSolver",
+                          "Reusable Fast MPC solver: workspace allocated once, warm start from the shifted plan.")
+      .def(py::init<int, std::vector<int>, std::vector<int>, const std::string&, double, std::optional<int>, double,
+                    bool, double>(),
+           py::arg("nx"), py::arg("nu"), py::arg("nc"), py::kw_only(), py::arg("mode") = "converged",
+           py::arg("tol") = 1e-8, py::arg("max_iter") = py::none(), py::arg("barrier") = 1e-4,
+           py::arg("warm_start") = true, py::arg("time_limit_us") = 0.0,
+           "nu and nc list the inputs and inequality rows of stages 0..N (so N = len(nu) - 1)")
+      .def("solve", &PyOcpSolver::solve, py::arg("A"), py::arg("B"), py::arg("b"), py::arg("Q"), py::arg("q"),
+           py::arg("R"), py::arg("r"), py::arg("C"), py::arg("D"), py::arg("d"), py::arg("x0"))
+      .def("shift_warm_start", [](PyOcpSolver& s) { s.solver().shift_warm_start(); },
+           "shift the last plan one stage: the warm start for the next control period")
+      .def("reset_warm_start", [](PyOcpSolver& s) { s.solver().reset_warm_start(); })
+      .def_property_readonly("N", [](PyOcpSolver& s) { return s.solver().dims().N; })
+      .def_property(
+          "time_limit_us", [](PyOcpSolver& s) { return s.solver().settings().time_limit_us; },
+          [](PyOcpSolver& s, double v) { s.solver().settings().time_limit_us = v; })
+      .def_property(
+          "max_iter", [](PyOcpSolver& s) { return s.solver().settings().max_iter; },
+          [](PyOcpSolver& s, int v) { s.solver().settings().max_iter = v; });
+}

@@ -98,6 +98,7 @@ const char* to_string(Status s) {
     case Status::Infeasible: return "infeasible";
     case Status::InvalidInput: return "invalid_input";
     case Status::NumericalError: return "numerical_error";
+    case Status::TimeLimit: return "time_limit";
   }
   return "unknown";
 }

@@ -56,7 +56,8 @@ enum class Status {
   MaxIter,       // iteration cap reached; the returned iterate satisfies the inequalities strictly
   Infeasible,    // the inequalities and dynamics admit no solution
   InvalidInput,  // sizes inconsistent, or NaN/Inf in the data or x0
-  NumericalError // factorization failed (e.g. a non-convex Q/R)
+  NumericalError, // factorization failed (e.g. a non-convex Q/R)
+  TimeLimit      // Settings::time_limit_us ran out; the returned iterate is the last one reached
 };
 const char* to_string(Status s);
 
@@ -71,6 +72,7 @@ struct Settings {
   double tol = 1e-8;          // relative tolerance on residuals and duality gap (Converged mode)
   double barrier = 1e-4;      // barrier weight kappa (FixedBarrier mode)
   bool warm_start = true;     // start from the shifted previous solution when it is usable
+  double time_limit_us = 0;   // wall-time budget of one solve(), checked between iterations (0 = none)
 };
 
 struct Info {

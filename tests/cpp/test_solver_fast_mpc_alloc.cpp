@@ -1,0 +1,148 @@
+// solve() must not touch the heap: every allocation path of this executable (operator new/delete
+// and the C allocator) is replaced by counting wrappers, and the count must not move across
+// solve() calls in both modes, warm and cold, feasible and infeasible, and with bad input.
+#include <doctest/doctest.h>
+
+#include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <new>
+
+#include "flight_sw/solver/fast_mpc.hpp"
+#include "test_solver_problems.hpp"
+
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define RVD_COUNT_ALLOCATIONS 0  // the sanitizer runtime owns the allocator
+#else
+#define RVD_COUNT_ALLOCATIONS 1
+#endif
+
+namespace {
+std::atomic<long> g_allocations{0};
+}
+
+#if RVD_COUNT_ALLOCATIONS
+extern "C" {
+void* __libc_malloc(size_t);
+void* __libc_calloc(size_t, size_t);
+void* __libc_realloc(void*, size_t);
+void* __libc_memalign(size_t, size_t);
+void __libc_free(void*);
+
+void* malloc(size_t n) {
+  ++g_allocations;
+  return __libc_malloc(n);
+}
+void* calloc(size_t n, size_t m) {
+  ++g_allocations;
+  return __libc_calloc(n, m);
+}
+void* realloc(void* p, size_t n) {
+  ++g_allocations;
+  return __libc_realloc(p, n);
+}
+void free(void* p) { __libc_free(p); }
+int posix_memalign(void** out, size_t align, size_t n) {
+  ++g_allocations;
+  *out = __libc_memalign(align, n);
+  return *out ? 0 : 12;  // ENOMEM
+}
+void* aligned_alloc(size_t align, size_t n) {
+  ++g_allocations;
+  return __libc_memalign(align, n);
+}
+void* memalign(size_t align, size_t n) {
+  ++g_allocations;
+  return __libc_memalign(align, n);
+}
+}
+
+void* operator new(size_t n) {
+  ++g_allocations;
+  if (void* p = __libc_malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](size_t n) { return operator new(n); }
+void* operator new(size_t n, const std::nothrow_t&) noexcept {
+  ++g_allocations;
+  return __libc_malloc(n ? n : 1);
+}
+void* operator new[](size_t n, const std::nothrow_t&) noexcept { return operator new(n, std::nothrow); }
+void* operator new(size_t n, std::align_val_t a) {
+  ++g_allocations;
+  if (void* p = __libc_memalign(static_cast<size_t>(a), n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](size_t n, std::align_val_t a) { return operator new(n, a); }
+void operator delete(void* p) noexcept { __libc_free(p); }
+void operator delete[](void* p) noexcept { __libc_free(p); }
+void operator delete(void* p, size_t) noexcept { __libc_free(p); }
+void operator delete[](void* p, size_t) noexcept { __libc_free(p); }
+void operator delete(void* p, std::align_val_t) noexcept { __libc_free(p); }
+void operator delete[](void* p, std::align_val_t) noexcept { __libc_free(p); }
+void operator delete(void* p, size_t, std::align_val_t) noexcept { __libc_free(p); }
+void operator delete[](void* p, size_t, std::align_val_t) noexcept { __libc_free(p); }
+#endif
+
+using namespace rvd::solver;
+using namespace rvd::solver::testing;
+
+namespace {
+// Heap allocations made while running f.
+template <class F>
+long allocations_during(F&& f) {
+  const long before = g_allocations.load();
+  f();
+  return g_allocations.load() - before;
+}
+}  // namespace
+
+TEST_CASE("the counters see allocations") {
+  if (!RVD_COUNT_ALLOCATIONS) return;
+  const long n = allocations_during([] {
+    Vector v = Vector::Ones(100);
+    auto* p = std::malloc(16);
+    std::free(p);
+    CHECK(v.sum() == 100.0);
+  });
+  CHECK(n == 2);
+}
+
+TEST_CASE("solve() allocates nothing, in every mode and outcome") {
+  if (!RVD_COUNT_ALLOCATIONS) {
+    MESSAGE("allocation counting is off under a sanitizer");
+    return;
+  }
+  for (int N : {5, 30}) {
+    OcpQp qp = docking_like(N, 0.0);
+    OcpQp bad = qp;
+    bad.q[2](1) = std::nan("");
+    OcpQp infeasible = qp;
+    infeasible.d[N](0) = -1e3;  // the cone's first facet pushed far out of reach: no plan exists
+    Vector x0 = docking_x0();
+
+    FastMpcSolver converged(qp.dims);
+    FastMpcSolver barrier(qp.dims, fixed_barrier_settings(1e-3, 30));
+    Status s1 = Status::InvalidInput, s2 = s1, s3 = s1, s4 = s1, s5 = s1, s6 = s1;
+    const long n = allocations_during([&] {
+      s1 = converged.solve(qp, x0);  // cold
+      converged.shift_warm_start();
+      s2 = converged.solve(qp, x0);  // warm
+      s3 = barrier.solve(qp, x0);    // cold: primal-dual start, then Newton
+      barrier.shift_warm_start();
+      s4 = barrier.solve(qp, x0);  // warm
+      s5 = converged.solve(infeasible, x0);
+      s6 = converged.solve(bad, x0);
+      converged.settings().time_limit_us = 1e-3;
+      converged.solve(qp, x0);
+      converged.settings().time_limit_us = 0;
+    });
+    CHECK(n == 0);
+    CHECK(s1 == Status::Solved);
+    CHECK(s2 == Status::Solved);
+    CHECK(s3 == Status::Solved);
+    CHECK(s4 == Status::Solved);
+    CHECK(s5 == Status::Infeasible);
+    CHECK(s6 == Status::InvalidInput);
+  }
+}
