@@ -1,0 +1,269 @@
+"""The PIL campaign behind `make pil`: the flight software cross-built for each target, run under QEMU
+against host_sim over Zenoh (lockstep), and turned into a report.
+
+    python -m bench.campaign                        quick default: q7s and rpi3
+    python -m bench.campaign --targets beaglebone   one target (TARGET=beaglebone make pil)
+    python -m bench.campaign --targets q7s --cpu cortex-a8     swap the emulated CPU model
+    python -m bench.campaign --full                 more scenarios (100 random starts, as ch. 6)
+
+Per target:
+  1. cross-build the static flight executable (cross/, qemu/targets.toml);
+  2. user mode + instruction-counting plugin: every (scenario x horizon set) run, nonlinear truth
+     (J2, drag), thruster and sensor noise, control delay = estimated target time;
+  3. checks: Case 1 in the ideal setting (CW truth, no noise, impulsive, no delay) natively and twice
+     under QEMU: delta-v agreement and instruction counts identical run to run;
+  4. system mode (where QEMU has a machine): Case 1 twice with -icount: in-guest solve times identical;
+then bench/report.py writes the report (HTML + PNG + CSV/JSON).
+
+Runs already finished with the same executable and settings are reused: a stopped campaign resumes.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from host_sim import scenario as scenarios
+from host_sim.pil import run_pil
+from host_sim.server import ServerConfig
+
+REPO = Path(__file__).resolve().parent.parent
+
+# Horizon sets (rendezvous, approach, docking): together they cover the dissertation's ch. 6 test plan
+# (rendezvous 15/30/45, approach 5/15/30, docking 5/12/30) in three runs per scenario.
+HORIZON_SETS = ((15, 5, 5), (30, 15, 12), (45, 30, 30))
+DEFAULT_HORIZONS = (30, 15, 12)
+
+
+@dataclass
+class Spec:
+    targets: list[str]
+    cpu: str | None = None
+    scenarios: list[str] = field(default_factory=lambda: ["case1_vbar", "random:1", "random:2"])
+    horizon_sets: list[tuple[int, int, int]] = field(default_factory=lambda: list(HORIZON_SETS))
+    truth: str = "nonlinear"
+    noise: bool = True
+    seed: int = 0
+    checks: bool = True
+    system_mode: bool = True
+    cmd_timeout_s: float = 120.0
+
+
+def _scenario(label: str):
+    if label.startswith("random:"):
+        return scenarios.random_scenario(int(label.split(":", 1)[1]))
+    return scenarios.load(label)
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+def _finished(run_dir: Path, fingerprint: str) -> bool:
+    meta = run_dir / "meta.json"
+    if not meta.exists():
+        return False
+    try:
+        m = json.loads(meta.read_text())
+    except json.JSONDecodeError:
+        return False
+    return m.get("status") == "finished" and m.get("campaign_fingerprint") == fingerprint
+
+
+def _fresh(run_dir: Path) -> None:
+    """A run directory is written once: clear an unfinished or outdated one before re-running it."""
+    if run_dir.exists():
+        for p in sorted(run_dir.rglob("*"), reverse=True):
+            p.unlink() if p.is_file() else p.rmdir()
+        run_dir.rmdir()
+
+
+class Campaign:
+    def __init__(self, spec: Spec, out: Path):
+        self.spec, self.out = spec, out
+        self.runs_dir = out / "runs"
+        self.log_lines: list[str] = []
+        self.t0 = time.monotonic()
+
+    def say(self, text: str) -> None:
+        line = f"[{time.monotonic() - self.t0:6.0f} s] {text}"
+        print(line, flush=True)
+        self.log_lines.append(line)
+
+    # -- one run ---------------------------------------------------------------------------------
+    def run(self, run_dir: Path, scenario_label: str, *, fingerprint: str, flight_command=None, runner=(),
+            flight_exe=None, flight_args=(), ideal=False, config: ServerConfig | None = None,
+            flight_endpoint=None, meta=None) -> dict:
+        if _finished(run_dir, fingerprint):
+            self.say(f"  reuse  {run_dir.relative_to(self.out)}")
+            return json.loads((run_dir / "meta.json").read_text())
+        _fresh(run_dir)
+        spec = self.spec
+        cfg = config or ServerConfig()
+        cfg.cmd_timeout_s = spec.cmd_timeout_s
+        cfg.hello_timeout_s = 180.0
+        kw = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True) if ideal else dict(
+            truth=spec.truth, sensor_noise=spec.noise, thrust_noise=spec.noise, impulsive=False)
+        if ideal:
+            cfg.delay_model = "none"
+        t0 = time.monotonic()
+        steps = [0]
+
+        def progress(k, summary, cmd):
+            steps[0] = k + 1
+            if k % 50 == 0 and k:
+                print(f"           ... step {k}, {time.monotonic() - t0:5.1f} s", flush=True)
+
+        summary, _ = run_pil(_scenario(scenario_label), seed=spec.seed, **kw, flight_exe=flight_exe,
+                             flight_args=list(flight_args), runner=runner, flight_command=flight_command,
+                             flight_endpoint=flight_endpoint, config=cfg, run_dir=run_dir, on_step=progress,
+                             meta={"campaign_fingerprint": fingerprint, "scenario_label": scenario_label,
+                                   **(meta or {})})
+        self.say(f"  {summary.end:<8} {run_dir.relative_to(self.out)}: {summary.steps} steps, "
+                 f"dv {summary.dv_total_mps:.3f} m/s, {time.monotonic() - t0:.1f} s wall")
+        return json.loads((run_dir / "meta.json").read_text())
+
+    # -- one target ------------------------------------------------------------------------------
+    def target(self, name: str) -> dict:
+        from qemu import build, plugin, system, targets, user
+
+        spec = self.spec
+        t = targets.load(name, cpu=spec.cpu)
+        self.say(f"{t.name}: {t.arch} {t.cpu} at {t.clock_hz / 1e6:.0f} MHz (CPI {t.cpi.nominal} "
+                 f"[{t.cpi.low}-{t.cpi.high}]), building the flight executable")
+        exe = build.cross_build(t)
+        self.say(f"{t.name}: {exe.path.relative_to(REPO)} ({exe.size_bytes / 1024:.0f} KiB, static)")
+        lib = plugin.build(download=True)
+        tdir = self.runs_dir / t.build_name
+        tdir.mkdir(parents=True, exist_ok=True)
+        base = {"target": t.name, "cpu": t.cpu, "arch": t.arch, "clock_hz": t.clock_hz,
+                "cpi": asdict(t.cpi), "exe_size_bytes": exe.size_bytes, "exe_sha": _sha(exe.path)}
+        fp_base = json.dumps([base, spec.truth, spec.noise, spec.seed], sort_keys=True)
+
+        def user_mode(run_dir: Path, plugin_log: Path):
+            counter = plugin.InsnCounter(log=plugin_log, library=lib)
+            return lambda args: user.command(t, exe.path, args, plugin=counter)
+
+        info = {"target": base, "runs": [], "checks": {}}
+        # 2. the timing campaign
+        for horizons in spec.horizon_sets:
+            hlabel = "N" + "-".join(map(str, horizons))
+            for label in spec.scenarios:
+                run_dir = tdir / f"{label.replace(':', '')}-{hlabel}"
+                fp = hashlib.sha256(f"{fp_base}{label}{horizons}".encode()).hexdigest()[:16]
+                cfg = ServerConfig(delay_model="estimated", cpi=t.cpi.nominal, clock_hz=t.clock_hz)
+                self.run(run_dir, label, fingerprint=fp,
+                         flight_command=user_mode(run_dir, run_dir.with_suffix(".insns")),
+                         flight_args=["--horizon", ",".join(map(str, horizons))], config=cfg,
+                         meta={**base, "mode": "user", "horizons": horizons, "kind": "timing"})
+                info["runs"].append(str(run_dir.relative_to(self.out)))
+        if not spec.checks:
+            return info
+        # 3. ideal Case 1: native once, QEMU user mode twice
+        ideal_meta = {**base, "horizons": DEFAULT_HORIZONS, "kind": "check"}
+        native_dir = self.runs_dir / "native" / "case1-ideal"
+        fp = hashlib.sha256(f"native{_sha(REPO / 'build/native/flight_sw/rvd_flight_sw')}".encode()).hexdigest()[:16]
+        native = self.run(native_dir, "case1_vbar", fingerprint=fp, ideal=True,
+                          meta={"target": "host", "mode": "native", "kind": "check", "horizons": DEFAULT_HORIZONS})
+        reps = []
+        for rep in (1, 2):
+            run_dir = tdir / f"case1-ideal-{rep}"
+            fp = hashlib.sha256(f"{fp_base}ideal{rep}".encode()).hexdigest()[:16]
+            reps.append(self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True,
+                                 flight_command=user_mode(run_dir, run_dir.with_suffix(".insns")),
+                                 meta={**ideal_meta, "mode": "user"}))
+            info["runs"].append(str(run_dir.relative_to(self.out)))
+        info["checks"]["native_vs_qemu"] = {"native_dv_mps": native.get("dv_total_mps"),
+                                            "qemu_dv_mps": [r.get("dv_total_mps") for r in reps],
+                                            "native_steps": native.get("steps"),
+                                            "qemu_steps": [r.get("steps") for r in reps],
+                                            "runs": [str(native_dir.relative_to(self.out)),
+                                                     *[f"runs/{t.build_name}/case1-ideal-{i}" for i in (1, 2)]]}
+        # 4. system mode, twice
+        if spec.system_mode and t.system is not None:
+            img = system.image(t)
+            for rep in (1, 2):
+                run_dir = tdir / f"case1-ideal-system-{rep}"
+                initrd = tdir / "initrd.cpio"
+                if not initrd.exists() or initrd.stat().st_mtime < exe.path.stat().st_mtime:
+                    system.program_initrd(img, exe.path, initrd)
+                fp = hashlib.sha256(f"{fp_base}system{rep}{img.kernel_version}".encode()).hexdigest()[:16]
+
+                def launch(args, img=img, initrd=initrd):
+                    return system.command(t, img, initrd, args)
+
+                self._system_run(run_dir, fp, launch, {**ideal_meta, "mode": "system", "kernel": img.kernel_version})
+                info["runs"].append(str(run_dir.relative_to(self.out)))
+            info["checks"]["system_mode"] = [str((tdir / f"case1-ideal-system-{i}").relative_to(self.out)) for i in (1, 2)]
+        return info
+
+    def _system_run(self, run_dir: Path, fp: str, launch, meta: dict) -> dict:
+        """System mode: the guest reaches the host at 10.0.2.2, so the flight software gets that endpoint."""
+
+        def flight_command(args):
+            # run_pil passes --connect tcp/127.0.0.1:PORT; inside the guest the host is 10.0.2.2.
+            args = [a.replace("tcp/127.0.0.1:", "tcp/10.0.2.2:") for a in args]
+            return launch(args)
+
+        return self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True, flight_command=flight_command, meta=meta)
+
+
+def parse_args(argv=None) -> tuple[Spec, Path, bool]:
+    ap = argparse.ArgumentParser(prog="python -m bench.campaign", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+    ap.add_argument("--targets", default="q7s,rpi3", help="comma-separated targets of qemu/targets.toml (default q7s,rpi3)")
+    ap.add_argument("--cpu", default=None, help="override the emulated CPU model (e.g. cortex-a8)")
+    ap.add_argument("--scenarios", default=None, help="comma-separated scenario names or random:<seed>")
+    ap.add_argument("--full", action="store_true", help="Case 1-3 and 20 random starts (long)")
+    ap.add_argument("--truth", choices=("nonlinear", "cw"), default="nonlinear")
+    ap.add_argument("--no-noise", action="store_true")
+    ap.add_argument("--no-checks", action="store_true", help="skip the determinism and native-vs-QEMU checks")
+    ap.add_argument("--no-system", action="store_true", help="skip QEMU system mode")
+    ap.add_argument("--out", default=str(REPO / "reports" / "pil"), help="campaign directory (default reports/pil)")
+    ap.add_argument("--report-only", action="store_true", help="rebuild the report from the runs in --out")
+    a = ap.parse_args(argv)
+    spec = Spec(targets=[t for t in a.targets.split(",") if t], cpu=a.cpu, truth=a.truth, noise=not a.no_noise,
+                checks=not a.no_checks, system_mode=not a.no_system)
+    if a.full:
+        spec.scenarios = ["case1_vbar", "case2_rbar", "case3_rotating"] + [f"random:{i}" for i in range(1, 21)]
+    if a.scenarios:
+        spec.scenarios = [s for s in a.scenarios.split(",") if s]
+    return spec, Path(a.out), a.report_only
+
+
+def main(argv=None) -> int:
+    from qemu import targets
+
+    spec, out, report_only = parse_args(argv)
+    unknown = [t for t in spec.targets if t not in targets.names()]
+    if unknown:
+        print(f"unknown target(s) {unknown}; known: {', '.join(targets.names())}", file=sys.stderr)
+        return 2
+    for label in spec.scenarios:
+        try:
+            _scenario(label)
+        except Exception as exc:  # a typo in a scenario name must stop the campaign before it starts
+            print(f"scenario {label!r}: {exc}", file=sys.stderr)
+            return 2
+    out.mkdir(parents=True, exist_ok=True)
+    camp = Campaign(spec, out)
+    campaign = {"spec": asdict(spec), "targets": {}}
+    if not report_only:
+        camp.say(f"campaign -> {out}: targets {spec.targets}, scenarios {spec.scenarios}, "
+                 f"horizon sets {spec.horizon_sets}")
+        for name in spec.targets:
+            campaign["targets"][name] = camp.target(name)
+        (out / "campaign.json").write_text(json.dumps(campaign, indent=1))
+    from bench import report
+
+    index = report.write(out)
+    camp.say(f"report: {index}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

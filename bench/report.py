@@ -1,0 +1,346 @@
+"""The PIL report: solve-time statistics and histograms per target, phase and horizon, from the run
+records of a campaign directory (bench/campaign.py).
+
+    python -m bench.report reports/pil        rebuild report.html, *.png, stats.csv, runs.csv, report.json
+
+Three timing sources, never mixed up (DESIGN.md §7):
+  - emulated wall time: the flight software's own clock under qemu-user (host time, noisy);
+  - instructions: counted by our TCG plugin per guidance step (deterministic);
+  - estimated target time = instructions x CPI / f_clk of the target's CPU model (stated with its
+    uncertainty band; not calibrated on hardware until the registry says so).
+"""
+from __future__ import annotations
+
+import html
+import json
+import math
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from host_sim.record import load_events, load_run  # noqa: E402
+
+PHASES = {1: "rendezvous", 2: "approach", 3: "docking"}
+# Dissertation ch. 6 (CVXGEN, QEMU ARM, mean emulated solve time, ms) per phase and horizon.
+DISSERTATION_MS = {"rendezvous": {15: 119.18, 30: 270.40, 45: 863.91},
+                   "approach": {5: 53.40, 15: 181.55, 30: 394.89},
+                   "docking": {5: 9.1, 12: 30.1, 30: 98.8}}
+
+
+def load_campaign(out: Path) -> tuple[list[dict], pd.DataFrame]:
+    """All run records under out/runs: (list of meta dicts with 'dir', one DataFrame of every step)."""
+    metas, frames = [], []
+    for meta_path in sorted((out / "runs").rglob("meta.json")):
+        run_dir = meta_path.parent
+        meta, steps = load_run(run_dir)
+        meta["dir"] = str(run_dir.relative_to(out))
+        metas.append(meta)
+        steps = steps.copy()
+        steps["run"] = meta["dir"]
+        for key in ("target", "mode", "kind", "scenario_label", "cpu"):
+            steps[key] = meta.get(key)
+        frames.append(steps)
+    df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    return metas, df
+
+
+def solves(metas: list[dict], df: pd.DataFrame) -> pd.DataFrame:
+    """One row per guidance step of the timing runs, with horizon, timing sources and budget."""
+    by_dir = {m["dir"]: m for m in metas}
+    rows = df[(df["kind"] == "timing") & df["phase"].isin(PHASES) & (df["solver_status"] != 255)].copy()
+    if rows.empty:
+        return rows
+    rows["phase_name"] = rows["phase"].map(PHASES)
+    rows["N"] = [int(by_dir[r]["horizons"][int(p) - 1]) for r, p in zip(rows["run"], rows["phase"])]
+    cpi = {m["dir"]: m["cpi"] for m in metas if m.get("cpi")}
+    clock = {m["dir"]: m["clock_hz"] for m in metas if m.get("clock_hz")}
+    frac = {m["dir"]: (m.get("flight_hello") or {}).get("deadline_fraction", 0.5) for m in metas}
+    for band in ("nominal", "low", "high"):
+        rows[f"target_us_{band}"] = [i * cpi[r][band] / clock[r] * 1e6 for i, r in zip(rows["instructions"], rows["run"])]
+    rows["budget_us"] = [frac[r] * ts * 1e6 for r, ts in zip(rows["run"], rows["cmd_period_s"])]
+    rows["cpu_load"] = rows["target_us_nominal"] / (rows["cmd_period_s"] * 1e6)
+    return rows
+
+
+def stats_table(rows: pd.DataFrame) -> pd.DataFrame:
+    out = []
+    for (target, phase, n), g in rows.groupby(["target", "phase_name", "N"], sort=False):
+        worst = g.loc[g["target_us_nominal"].idxmax()]
+        out.append({
+            "target": target, "phase": phase, "N": n, "solves": len(g),
+            "target_ms_mean": g["target_us_nominal"].mean() / 1e3,
+            "target_ms_p50": g["target_us_nominal"].median() / 1e3,
+            "target_ms_p99": g["target_us_nominal"].quantile(0.99) / 1e3,
+            "target_ms_max": worst["target_us_nominal"] / 1e3,
+            "target_ms_max_low": worst["target_us_low"] / 1e3, "target_ms_max_high": worst["target_us_high"] / 1e3,
+            "max_at": f"{worst['run']} step {int(worst['step'])}",
+            "insns_mean": g["instructions"].mean(), "insns_max": g["instructions"].max(),
+            "wall_ms_mean": g["solve_time_us"].mean() / 1e3, "wall_ms_p99": g["solve_time_us"].quantile(0.99) / 1e3,
+            "wall_ms_max": g["solve_time_us"].max() / 1e3,
+            "iterations_mean": g["iterations"].mean(), "iterations_max": g["iterations"].max(),
+            "overruns_flight_clock": int(g["overrun"].sum()),
+            "deadline_misses_est": int((g["target_us_high"] > g["budget_us"]).sum()),
+            "deadline_ms": g["budget_us"].iloc[0] / 1e3,
+            "cpu_load_mean_pct": 100 * g["cpu_load"].mean(), "cpu_load_max_pct": 100 * g["cpu_load"].max(),
+            "dissertation_cvxgen_ms": DISSERTATION_MS.get(phase, {}).get(int(n), math.nan),
+        })
+    return pd.DataFrame(out).sort_values(["target", "phase", "N"], key=lambda c: c.map(
+        {"rendezvous": 0, "approach": 1, "docking": 2}) if c.name == "phase" else c)
+
+
+def checks(metas: list[dict], df: pd.DataFrame) -> dict:
+    """Determinism and native-vs-QEMU agreement from the check runs."""
+    by_dir = {m["dir"]: m for m in metas}
+    out: dict = {}
+    native = [m for m in metas if m.get("mode") == "native" and m.get("kind") == "check"]
+    native_dv = native[0].get("dv_total_mps") if native else None
+    for target in sorted({m.get("target") for m in metas if m.get("kind") == "check" and m.get("mode") != "native"}):
+        res: dict = {}
+        for mode, col in (("user", "instructions"), ("system", "solve_time_us")):
+            dirs = sorted(d for d, m in by_dir.items() if m.get("target") == target and m.get("kind") == "check"
+                          and m.get("mode") == mode)
+            if len(dirs) < 2:
+                continue
+            a = df[df["run"] == dirs[0]][col].to_numpy()
+            b = df[df["run"] == dirs[1]][col].to_numpy()
+            same = len(a) == len(b) and bool(np.array_equal(np.nan_to_num(a), np.nan_to_num(b)))
+            res[f"{mode}_{col}_identical"] = same
+            res[f"{mode}_{col}_compared"] = int(min(len(a), len(b)))
+            res[f"{mode}_{col}_sum"] = float(np.nansum(a))
+            dvs = [by_dir[d].get("dv_total_mps") for d in dirs]
+            if native_dv is not None:
+                res[f"{mode}_dv_minus_native_mps"] = [None if v is None else v - native_dv for v in dvs]
+                res[f"{mode}_steps"] = [by_dir[d].get("steps") for d in dirs]
+        res["native_dv_mps"] = native_dv
+        res["native_steps"] = native[0].get("steps") if native else None
+        out[target] = res
+    return out
+
+
+# ---- plots -------------------------------------------------------------------------------------
+def plot_histograms(rows: pd.DataFrame, target: str, path: Path) -> None:
+    g = rows[rows["target"] == target]
+    fig, axes = plt.subplots(2, 3, figsize=(15, 7.5))
+    for j, phase in enumerate(("rendezvous", "approach", "docking")):
+        gp = g[g["phase_name"] == phase]
+        for i, (col, label) in enumerate((("target_us_nominal", "estimated target time [ms]"),
+                                          ("solve_time_us", "emulated wall time (qemu-user) [ms]"))):
+            ax = axes[i, j]
+            data = [(n, gp[gp["N"] == n][col].to_numpy() / 1e3) for n in sorted(gp["N"].unique())]
+            if data:
+                hi = max(d.max() for _, d in data if len(d))
+                bins = np.linspace(0, hi * 1.02 if hi > 0 else 1, 40)
+                for n, d in data:
+                    ax.hist(d, bins=bins, histtype="step", linewidth=1.6, label=f"N = {n} ({len(d)})")
+                ax.legend(fontsize=8)
+            ax.set_xlabel(label)
+            ax.set_ylabel("solves")
+            if i == 0:
+                ax.set_title(phase)
+    fig.suptitle(f"{target}: guidance step time per phase and horizon")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def plot_scaling(table: pd.DataFrame, path: Path) -> None:
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for j, phase in enumerate(("rendezvous", "approach", "docking")):
+        ax = axes[j]
+        t = table[table["phase"] == phase]
+        for target, g in t.groupby("target"):
+            g = g.sort_values("N")
+            ax.errorbar(g["N"], g["target_ms_mean"], fmt="o-", label=f"{target} (estimate)")
+        ref = DISSERTATION_MS[phase]
+        ax.plot(list(ref), list(ref.values()), "ks--", label="dissertation CVXGEN, QEMU wall")
+        ax.set_yscale("log")
+        ax.set_xlabel("horizon N")
+        ax.set_ylabel("mean time per solve [ms]")
+        ax.set_title(phase)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def plot_trajectory(meta: dict, steps: pd.DataFrame, path: Path) -> None:
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(14, 5.5))
+    colors = {1: "tab:blue", 2: "tab:orange", 3: "tab:green"}
+    for ph, g in steps.groupby("phase"):
+        if ph in PHASES:
+            ax.plot(g["truth_y_m"], g["truth_x_m"], ".", ms=3, color=colors[ph], label=PHASES[ph])
+    r1 = 200.0
+    th = np.linspace(0, 2 * np.pi, 200)
+    ax.plot(r1 * np.cos(th), r1 * np.sin(th), "k:", lw=1, label="keep-out r1 = 200 m")
+    ax.plot([0], [0], "k+", ms=12)
+    ax.set_xlabel("V-bar y [m]")
+    ax.set_ylabel("R-bar x [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(fontsize=8)
+    ax.set_title(f"{meta.get('scenario_label', meta.get('scenario_name'))}: in-plane trajectory (truth)")
+    dv = np.sqrt(steps["dv_x_mps"] ** 2 + steps["dv_y_mps"] ** 2 + steps["dv_z_mps"] ** 2)
+    for ph, g in steps.groupby("phase"):
+        if ph in PHASES:
+            bx.vlines(g["t_s"], 0, dv[g.index], color=colors[ph], lw=1.2, label=PHASES[ph])
+    bx.set_xlabel("t [s]")
+    bx.set_ylabel("realised |delta-v| per period [m/s]")
+    bx.set_title(f"thrust: total {meta.get('dv_total_mps', float('nan')):.2f} m/s, {meta.get('end')}")
+    bx.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+# ---- HTML --------------------------------------------------------------------------------------
+def _table_html(df: pd.DataFrame, floatfmt: str = "{:.3g}") -> str:
+    def cell(v):
+        if isinstance(v, float):
+            return "" if math.isnan(v) else floatfmt.format(v)
+        return html.escape(str(v))
+    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in df.columns)
+    body = "".join("<tr>" + "".join(f"<td>{cell(v)}</td>" for v in row) + "</tr>" for row in df.itertuples(index=False))
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _tool_version(cmd: list[str]) -> str:
+    try:
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=10).stdout.splitlines()[0]
+    except Exception:
+        return "unknown"
+
+
+def write(out: Path) -> Path:
+    out = Path(out)
+    metas, df = load_campaign(out)
+    if df.empty:
+        raise SystemExit(f"no run records under {out / 'runs'}")
+    rows = solves(metas, df)
+    table = stats_table(rows) if not rows.empty else pd.DataFrame()
+    chk = checks(metas, df)
+    table.to_csv(out / "stats.csv", index=False)
+    run_cols = ["dir", "target", "cpu", "mode", "kind", "scenario_label", "horizons", "end", "steps", "t_end_s",
+                "dv_total_mps", "nav_resends", "rejected_messages", "exe_size_bytes"]
+    runs = pd.DataFrame([{c: (str(m.get(c)) if isinstance(m.get(c), (list, tuple)) else m.get(c)) for c in run_cols}
+                         for m in metas])
+    for m, (i, r) in zip(metas, runs.iterrows()):
+        tel = m.get("flight_telemetry") or {}
+        runs.loc[i, "peak_heap_kib"] = tel.get("peak_heap_bytes", math.nan) / 1024 if tel else math.nan
+        runs.loc[i, "qemu_max_rss_mib"] = tel.get("max_rss_kb", math.nan) / 1024 if tel else math.nan
+    runs.to_csv(out / "runs.csv", index=False)
+
+    targets = [t for t in dict.fromkeys(rows["target"])] if not rows.empty else []
+    images = []
+    for t in targets:
+        p = out / f"hist_{t}.png"
+        plot_histograms(rows, t, p)
+        images.append(p.name)
+    if not table.empty:
+        plot_scaling(table, out / "scaling.png")
+    traj = []
+    seen = set()
+    for m in metas:
+        label = m.get("scenario_label")
+        if m.get("kind") == "timing" and tuple(m.get("horizons", ())) == (30, 15, 12) and label not in seen:
+            seen.add(label)
+            _, steps = load_run(out / m["dir"])
+            p = out / f"trajectory_{label.replace(':', '')}.png"
+            plot_trajectory(m, steps, p)
+            traj.append((label, p.name))
+
+    targets_meta = {}
+    for m in metas:
+        if m.get("target") and m.get("cpi") and m["target"] not in targets_meta:
+            targets_meta[m["target"]] = m
+    memory = runs[runs["kind"] == "timing"].groupby("target").agg(
+        exe_size_kib=("exe_size_bytes", lambda s: s.max() / 1024), peak_heap_kib=("peak_heap_kib", "max"),
+        qemu_max_rss_mib=("qemu_max_rss_mib", "max")).reset_index() if not runs.empty else pd.DataFrame()
+
+    scaling = {}
+    for (target, phase), g in table.groupby(["target", "phase"]) if not table.empty else []:
+        g = g.sort_values("N")
+        scaling[f"{target} {phase}"] = {"N": g["N"].tolist(), "mean_ms": g["target_ms_mean"].tolist(),
+                                       "ratio_last_first": float(g["target_ms_mean"].iloc[-1] / g["target_ms_mean"].iloc[0])}
+    report = {"stats": table.to_dict(orient="records"), "checks": chk, "scaling": scaling,
+              "runs": runs.to_dict(orient="records"),
+              "environment": {"host": platform.platform(), "python": sys.version.split()[0],
+                              "qemu": _tool_version(["qemu-arm", "--version"])}}
+    (out / "report.json").write_text(json.dumps(report, indent=1, default=str))
+
+    # HTML
+    parts = ["<!doctype html><meta charset='utf-8'><title>rvd-pil PIL report</title>",
+             "<style>body{font-family:sans-serif;margin:2em;max-width:1400px}table{border-collapse:collapse;"
+             "font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:right}th{background:#eee}"
+             "td:first-child,th:first-child{text-align:left}.ok{color:green}.bad{color:#b00}</style>",
+             "<h1>rvd-pil processor-in-the-loop report</h1>",
+             f"<p>{len(metas)} runs, {len(rows)} timed guidance steps. Host {html.escape(platform.platform())}; "
+             f"{html.escape(report['environment']['qemu'])}.</p>",
+             "<h2>Timing model</h2><p>QEMU is not cycle-accurate: host wall time under emulation is not target "
+             "time. The plugin counts guest instructions per guidance step (QP build + solve + allocation) "
+             "exactly; the estimated target time is instructions &times; CPI / f<sub>clk</sub> with the CPU "
+             "model below. The CPI figures are engineering estimates with a low-high band, <b>not calibrated "
+             "on hardware</b>; deadline misses are counted against the <i>high</i> end of the band.</p>"]
+    tm = pd.DataFrame([{"target": t, "cpu": m.get("cpu"), "clock MHz": m["clock_hz"] / 1e6,
+                        "CPI nominal": m["cpi"]["nominal"], "CPI low": m["cpi"]["low"], "CPI high": m["cpi"]["high"],
+                        "calibrated": m["cpi"]["calibrated"]} for t, m in targets_meta.items()])
+    if not tm.empty:
+        parts.append(_table_html(tm))
+    parts.append("<p>Calibrating on a real board: run the same static executable there under "
+                 "<code>perf stat -e cycles,instructions</code> on a Case 1 run, divide cycles by "
+                 "instructions, and put that CPI into <code>qemu/targets.toml</code> with "
+                 "<code>calibrated = true</code>.</p>")
+    parts.append("<h2>Per phase and horizon</h2>")
+    if not table.empty:
+        show = table[["target", "phase", "N", "solves", "target_ms_mean", "target_ms_p50", "target_ms_p99",
+                      "target_ms_max", "target_ms_max_high", "max_at", "insns_mean", "wall_ms_mean", "wall_ms_max",
+                      "iterations_mean", "deadline_ms", "overruns_flight_clock", "deadline_misses_est",
+                      "cpu_load_mean_pct", "cpu_load_max_pct", "dissertation_cvxgen_ms"]]
+        parts.append(_table_html(show))
+    for img in images:
+        parts.append(f"<h3>{html.escape(img)}</h3><img src='{img}' style='max-width:100%'>")
+    if not table.empty:
+        parts.append("<h2>Scaling with the horizon</h2><img src='scaling.png' style='max-width:100%'>")
+        parts.append("<ul>" + "".join(f"<li>{html.escape(k)}: t(N={v['N'][-1]})/t(N={v['N'][0]}) = "
+                                      f"{v['ratio_last_first']:.2f}</li>" for k, v in scaling.items()) + "</ul>")
+    parts.append("<h2>Checks</h2>")
+    for t, c in chk.items():
+        items = []
+        for k, v in c.items():
+            cls = ""
+            if k.endswith("_identical"):
+                cls = "ok" if v else "bad"
+            if k.endswith("_dv_minus_native_mps") and v:
+                cls = "ok" if all(x is not None and abs(x) <= 1e-6 for x in v) else "bad"
+            items.append(f"<li class='{cls}'>{html.escape(k)}: {html.escape(json.dumps(v))}</li>")
+        parts.append(f"<h3>{html.escape(t)}</h3><ul>{''.join(items)}</ul>")
+    parts.append("<h2>Memory and size</h2>")
+    if not memory.empty:
+        parts.append(_table_html(memory))
+        parts.append("<p>peak heap: malloc statistics of the flight software; qemu max RSS: the QEMU process "
+                     "(guest plus emulator), an upper bound.</p>")
+    parts.append("<h2>Trajectories</h2>")
+    for label, img in traj:
+        parts.append(f"<h3>{html.escape(label)}</h3><img src='{img}' style='max-width:100%'>")
+    parts.append("<h2>Runs</h2>" + _table_html(runs))
+    events = []
+    for m in metas:
+        ev = load_events(out / m["dir"])
+        for _, e in ev[ev["kind"].isin(["fault", "flight_software_lost", "collision", "timeout", "rejected_message"])].iterrows():
+            events.append({"run": m["dir"], "t_s": e["t_s"], "kind": e["kind"], "detail": e["detail"]})
+    if events:
+        parts.append("<h2>Faults and end events</h2>" + _table_html(pd.DataFrame(events)))
+    index = out / "report.html"
+    index.write_text("\n".join(parts))
+    return index
+
+
+if __name__ == "__main__":
+    print(write(Path(sys.argv[1] if len(sys.argv) > 1 else "reports/pil")))

@@ -1,0 +1,301 @@
+#include "flight_sw/app/flight_app.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <stdexcept>
+
+#include <sys/resource.h>
+#include <unistd.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
+#include "flight_sw/app/build_info.hpp"
+
+namespace rvd::app {
+
+namespace {
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+// Residuals and objective may be NaN/Inf after a failed solve; the wire carries only finite values,
+// so "unavailable" travels as -1.
+double finite_or(double v, double fallback = -1.0) { return std::isfinite(v) ? v : fallback; }
+
+uint8_t solver_status_code(const guidance::Command& c) {
+  if (!c.solved) return 255;
+  return static_cast<uint8_t>(c.solver.status);
+}
+
+int phase_index(guidance::Phase p) {
+  switch (p) {
+    case guidance::Phase::Rendezvous: return 0;
+    case guidance::Phase::Approach: return 1;
+    default: return 2;
+  }
+}
+
+uint64_t heap_in_use_bytes() {
+#if defined(__GLIBC__) && (__GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 33))
+  const struct mallinfo2 mi = mallinfo2();
+  return static_cast<uint64_t>(mi.uordblks) + static_cast<uint64_t>(mi.hblkhd);
+#else
+  return 0;
+#endif
+}
+
+uint64_t max_rss_kb() {
+  struct rusage ru {};
+  if (getrusage(RUSAGE_SELF, &ru) != 0) return 0;
+  return static_cast<uint64_t>(ru.ru_maxrss);
+}
+}  // namespace
+
+void PhaseLog::add(int i, uint32_t step, double solve_us, bool overrun, uint64_t insns) {
+  steps[i] += 1;
+  sum_solve_us[i] += solve_us;
+  if (steps[i] == 1 || solve_us > max_solve_us[i]) {
+    max_solve_us[i] = solve_us;
+    max_step[i] = step;
+  }
+  overruns[i] += overrun ? 1 : 0;
+  instructions[i] += insns;
+}
+
+const char* to_string(ExitReason r) {
+  switch (r) {
+    case ExitReason::Bye: return "bye from the host";
+    case ExitReason::Signal: return "signal";
+    case ExitReason::LinkLost: return "link lost";
+    case ExitReason::Idle: return "no nav within the idle timeout";
+    case ExitReason::NeverConnected: return "never connected";
+  }
+  return "unknown";
+}
+
+FlightApp::FlightApp(AppConfig config)
+    : cfg_(std::move(config)),
+      marker_(cfg_.markers < 0 ? kSolveMarkersByDefault : cfg_.markers == 1) {
+  if (!(cfg_.deadline_fraction > 0.0)) throw std::invalid_argument("deadline fraction must be > 0");
+  if (cfg_.cpu_model.empty()) cfg_.cpu_model = build_info::kCpuModel;
+  guidance_ = std::make_unique<guidance::Guidance>(cfg_.guidance);  // validates the parameters
+}
+
+std::string FlightApp::key(const char* kind) const { return "rvd/" + cfg_.run_id + "/" + kind; }
+
+void FlightApp::note(const char* fmt, ...) const {
+  if (!cfg_.verbose) return;
+  std::va_list ap;
+  va_start(ap, fmt);
+  std::fprintf(stderr, "[flight_sw] ");
+  std::vfprintf(stderr, fmt, ap);
+  std::fprintf(stderr, "\n");
+  va_end(ap);
+}
+
+msg::Hello FlightApp::hello(uint32_t session) const {
+  msg::Hello h;
+  msg::set_str(h.arch, build_info::kArch);
+  msg::set_str(h.cpu_model, cfg_.cpu_model);
+  msg::set_str(h.compiler, build_info::compiler());
+  msg::set_str(h.build, build_info::kBuildFlags);
+  const auto& g = cfg_.guidance;
+  h.solver_mode = g.rendezvous.solver.mode == solver::Mode::FixedBarrier ? 0 : 1;
+  h.solver_max_iter = static_cast<uint16_t>(g.rendezvous.solver.max_iter);
+  h.solver_tol = g.rendezvous.solver.tol;
+  h.horizon = {static_cast<uint16_t>(g.rendezvous.N), static_cast<uint16_t>(g.approach.N),
+               static_cast<uint16_t>(g.docking.N)};
+  h.period_s = {g.rendezvous.Ts_s, g.approach.Ts_s, g.docking.Ts_s};
+  h.deadline_fraction = cfg_.deadline_fraction;
+  h.pid = static_cast<uint32_t>(getpid());
+  h.session = session;
+  return h;
+}
+
+msg::Telemetry FlightApp::telemetry() const {
+  msg::Telemetry t;
+  for (int i = 0; i < 3; ++i) {
+    t.steps[i] = log_.steps[i];
+    t.overruns[i] = log_.overruns[i];
+    t.mean_solve_us[i] = log_.steps[i] ? log_.sum_solve_us[i] / log_.steps[i] : 0.0;
+    t.max_solve_us[i] = log_.max_solve_us[i];
+    t.max_step[i] = log_.max_step[i];
+    t.total_instructions[i] = log_.instructions[i];
+  }
+  t.peak_heap_bytes = peak_heap_bytes_;
+  t.max_rss_kb = max_rss_kb();
+  t.nav_rejected = nav_rejected_;
+  t.nav_duplicates = nav_duplicates_;
+  return t;
+}
+
+std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
+  const bool first = (nav.flags & 1u) != 0;
+  if (last_cmd_ && nav.step == last_cmd_->step) {  // a resend: same answer, guidance state untouched
+    ++nav_duplicates_;
+    return last_cmd_;
+  }
+  if (first) {  // a (re)started run
+    guidance_->reset();
+    log_ = PhaseLog{};
+    overruns_ = 0;
+    last_cmd_.reset();
+  } else if (last_cmd_ && nav.step < last_cmd_->step) {
+    ++nav_stale_;  // older than what we answered: a late duplicate, nothing to do
+    return std::nullopt;
+  }
+
+  msg::Cmd out;
+  out.step = nav.step;
+  if (cfg_.trivial_guidance) {
+    out.phase = static_cast<uint8_t>(guidance::Phase::Rendezvous);
+    out.guidance_status = static_cast<uint8_t>(guidance::StepStatus::ZeroThrust);
+    out.solver_status = 255;
+    out.period_s = cfg_.guidance.rendezvous.Ts_s;
+    last_cmd_ = out;
+    return out;
+  }
+
+  guidance::NavInput in;
+  in.step = nav.step;
+  in.t_s = nav.t_s;
+  for (int i = 0; i < 3; ++i) {
+    in.x_lvlh(i) = nav.position_lvlh_m[i];
+    in.x_lvlh(3 + i) = nav.velocity_lvlh_mps[i];
+  }
+  in.q_lvlh_body = Eigen::Quaterniond(nav.q_lvlh_body[0], nav.q_lvlh_body[1], nav.q_lvlh_body[2], nav.q_lvlh_body[3]);
+  in.omega_body_rad_s = Eigen::Vector3d(nav.omega_body_rad_s[0], nav.omega_body_rad_s[1], nav.omega_body_rad_s[2]);
+
+  const int phase_before = phase_index(guidance_->phase());
+  const double budget_us = cfg_.deadline_fraction * cfg_.guidance.phase(guidance_->phase()).Ts_s * 1e6;
+  marker_.begin(nav.step);
+  const guidance::Command c = guidance_->step(in, budget_us);
+  const uint64_t insns = marker_.end(nav.step);
+
+  const bool overrun = (c.solved && c.solver.status == solver::Status::TimeLimit) || c.step_time_us > budget_us;
+  overruns_ += overrun ? 1 : 0;
+  if (c.solved) log_.add(phase_before, nav.step, c.solver.solve_time_us, overrun, insns);
+  peak_heap_bytes_ = std::max(peak_heap_bytes_, heap_in_use_bytes());
+
+  out.phase = static_cast<uint8_t>(c.phase);
+  out.guidance_status = static_cast<uint8_t>(c.status);
+  out.solver_status = solver_status_code(c);
+  out.overrun = overrun ? 1 : 0;
+  out.period_s = c.period_s;
+  for (int i = 0; i < 3; ++i) {
+    out.dv_cmd_lvlh_mps[i] = finite_or(c.dv_cmd_mps(i), 0.0);
+    out.dv_alloc_lvlh_mps[i] = finite_or(c.dv_alloc_mps(i), 0.0);
+  }
+  for (int i = 0; i < 6; ++i) out.pulse_s[i] = finite_or(c.pulse_s[i], 0.0);
+  out.solve_time_us = c.solved ? finite_or(c.solver.solve_time_us, 0.0) : 0.0;
+  out.step_time_us = finite_or(c.step_time_us, 0.0);
+  out.instructions = insns;
+  out.iterations = static_cast<uint16_t>(c.solved ? c.solver.iterations : 0);
+  out.overruns = overruns_;
+  out.primal_residual = c.solved ? finite_or(c.solver.primal_residual) : -1.0;
+  out.dual_residual = c.solved ? finite_or(c.solver.dual_residual) : -1.0;
+  out.objective = c.solved ? finite_or(c.solver.objective, 0.0) : 0.0;
+  last_cmd_ = out;
+  return out;
+}
+
+void FlightApp::on_nav_bytes(const uint8_t* data, size_t size) {
+  msg::Nav nav;
+  const msg::Error e = msg::decode(data, size, nav);
+  if (e != msg::Error::None) {
+    ++nav_rejected_;
+    note("nav rejected: %s (%zu bytes)", msg::to_string(e), size);
+    return;
+  }
+  pending_nav_ = nav;
+  have_nav_ = true;
+}
+
+template <class M>
+void FlightApp::publish_msg(const char* kind, const M& m) {
+  uint8_t buf[M::kSize];
+  msg::Error e = msg::Error::None;
+  const size_t n = msg::encode(m, buf, sizeof buf, &e);
+  if (n == 0) {
+    note("cannot encode %s: %s", kind, msg::to_string(e));
+    return;
+  }
+  const link::LinkStatus st = session_->put(key(kind), buf, n);
+  if (st != link::LinkStatus::Ok) note("put %s: %s", kind, link::to_string(st));
+}
+
+ExitReason FlightApp::run(const std::atomic<bool>& stop) {
+  link::ZenohConfig zc;
+  zc.endpoint = cfg_.endpoint;
+  zc.lease_ms = cfg_.lease_ms;
+  session_ = std::make_unique<link::ZenohSession>(zc);
+  session_->declare_subscriber(key("nav"), [this](const link::Sample& s) { on_nav_bytes(s.payload, s.size); });
+  session_->declare_subscriber(key("bye"), [this](const link::Sample& s) {
+    msg::Bye b;
+    if (msg::decode(s.payload, s.size, b) == msg::Error::None) bye_received_ = true;
+  });
+  link::LinkStatus st = session_->open();
+  note("connecting to %s: %s", cfg_.endpoint.c_str(), link::to_string(st));
+
+  const auto t_start = Clock::now();
+  auto t_last_nav = Clock::now();
+  uint64_t hello_for_connect = 0;
+  uint32_t answered = 0;
+  ExitReason reason = ExitReason::Bye;
+  for (;;) {
+    if (stop.load()) {
+      reason = ExitReason::Signal;
+      break;
+    }
+    const uint64_t connects = session_->stats().connects;
+    if (session_->connected() && connects != hello_for_connect) {  // first connection or a reconnect
+      publish_msg("hello", hello(static_cast<uint32_t>(connects)));
+      hello_for_connect = connects;
+      t_last_nav = Clock::now();
+      note("session %llu up", static_cast<unsigned long long>(connects));
+    }
+    st = session_->poll(100);
+    if (have_nav_) {
+      have_nav_ = false;
+      t_last_nav = Clock::now();
+      if (auto cmd = handle_nav(pending_nav_)) {
+        publish_msg("cmd", *cmd);
+        if (++answered % static_cast<uint32_t>(std::max(cfg_.telemetry_every, 1)) == 0)
+          publish_msg("telemetry", telemetry());
+      }
+    }
+    if (bye_received_) {
+      reason = ExitReason::Bye;
+      break;
+    }
+    if (st == link::LinkStatus::ReconnectExhausted || st == link::LinkStatus::NotConnected) {
+      reason = hello_for_connect ? ExitReason::LinkLost : ExitReason::NeverConnected;
+      break;
+    }
+    if (hello_for_connect == 0 && seconds_since(t_start) > cfg_.connect_timeout_s) {
+      reason = ExitReason::NeverConnected;
+      break;
+    }
+    if (hello_for_connect != 0 && seconds_since(t_last_nav) > cfg_.idle_timeout_s) {
+      reason = ExitReason::Idle;
+      break;
+    }
+  }
+  if (session_->connected()) {
+    publish_msg("telemetry", telemetry());
+    msg::Bye bye;
+    bye.reason = reason == ExitReason::Bye ? 0 : reason == ExitReason::Signal ? 4 : 3;
+    bye.last_step = last_cmd_ ? last_cmd_->step : 0;
+    msg::set_str(bye.text, std::string("flight_sw exit: ") + to_string(reason));
+    publish_msg("bye", bye);
+    session_->close();
+  }
+  note("exit: %s (overruns %u, nav rejected %u, duplicates %u)", to_string(reason), overruns_, nav_rejected_,
+       nav_duplicates_);
+  return reason;
+}
+
+}  // namespace rvd::app

@@ -1,0 +1,84 @@
+// The flight software as a program: link (Zenoh client + message codec) -> guidance -> link.
+//
+// On every nav message it runs one guidance step under a deadline (a fraction of the phase's control
+// period, on the flight computer's own clock), publishes the cmd, and keeps the per-phase solve-time
+// log that it also sends as telemetry. A nav it already answered (a resend after a lost message) is
+// answered again from the cached cmd, so a resend never changes the trajectory. It leaves cleanly on
+// bye or SIGTERM, and on a link that stays lost or a host that stays silent it gives up after a bound
+// instead of waiting for ever.
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "flight_sw/app/solve_marker.hpp"
+#include "flight_sw/guidance/guidance.hpp"
+#include "flight_sw/link/messages.hpp"
+#include "flight_sw/link/zenoh_session.hpp"
+
+namespace rvd::app {
+
+struct AppConfig {
+  std::string endpoint = "tcp/127.0.0.1:7447";
+  std::string run_id = "run";
+  guidance::GuidanceParams guidance;
+  double deadline_fraction = 0.5;  // solve budget = fraction x Ts of the current phase
+  bool trivial_guidance = false;   // answer every nav with zero thrust at once (link latency benchmark)
+  double idle_timeout_s = 300.0;   // give up when no nav arrives for this long after hello
+  double connect_timeout_s = 60.0; // give up when the first connection does not come up in this time
+  uint32_t lease_ms = 20000;       // generous: emulator stalls must not trip the host's lease check
+  int telemetry_every = 20;        // steps between telemetry messages (and one at the end)
+  int markers = -1;                // instruction markers: -1 auto (ARM builds), 0 off, 1 on
+  std::string cpu_model;           // reported in hello (defaults to the build's -mcpu)
+  bool verbose = false;
+};
+
+// Per-phase solve-time log (telemetry). Index 0 rendezvous, 1 approach, 2 docking.
+struct PhaseLog {
+  std::array<uint32_t, 3> steps{}, overruns{}, max_step{};
+  std::array<double, 3> sum_solve_us{}, max_solve_us{};
+  std::array<uint64_t, 3> instructions{};
+  void add(int phase_index, uint32_t step, double solve_us, bool overrun, uint64_t insns);
+};
+
+enum class ExitReason { Bye = 0, Signal = 1, LinkLost = 3, Idle = 4, NeverConnected = 5 };
+const char* to_string(ExitReason r);
+
+class FlightApp {
+ public:
+  explicit FlightApp(AppConfig config);  // throws std::invalid_argument on unusable parameters
+  // Runs until bye, `stop` becoming true, a permanently lost link or the idle timeout.
+  ExitReason run(const std::atomic<bool>& stop);
+
+  // One nav -> one cmd, without the link (also what the tests drive).
+  // nullopt for a nav older than the last one answered (nothing to send).
+  std::optional<msg::Cmd> handle_nav(const msg::Nav& nav);
+  const PhaseLog& log() const { return log_; }
+  msg::Telemetry telemetry() const;
+  msg::Hello hello(uint32_t session) const;
+
+ private:
+  void on_nav_bytes(const uint8_t* data, size_t size);
+  template <class M> void publish_msg(const char* kind, const M& m);
+  std::string key(const char* kind) const;
+  void note(const char* fmt, ...) const;
+
+  AppConfig cfg_;
+  std::unique_ptr<guidance::Guidance> guidance_;
+  std::unique_ptr<link::ZenohSession> session_;
+  SolveMarker marker_;
+  PhaseLog log_;
+  std::optional<msg::Cmd> last_cmd_;
+  msg::Nav pending_nav_{};
+  bool have_nav_ = false;
+  bool bye_received_ = false;
+  uint32_t nav_rejected_ = 0, nav_duplicates_ = 0, nav_stale_ = 0, overruns_ = 0;
+  uint64_t peak_heap_bytes_ = 0;
+};
+
+}  // namespace rvd::app

@@ -1,0 +1,131 @@
+"""rvd-run: run one scenario processor-in-the-loop with the flight executable.
+
+    rvd-run case1_vbar                           nonlinear truth (J2, drag), thruster and sensor noise
+    rvd-run case1_vbar --truth cw --ideal        CW truth, no noise, impulsive burns (exact reference)
+    rvd-run random:7                             a seeded random scenario (dissertation ch. 4 distribution)
+    rvd-run case3_rotating --runner "qemu-arm -cpu cortex-a9" --flight-sw build/cross/q7s/flight_sw/rvd_flight_sw
+    rvd-run case1_vbar -- --horizon 45,15,12     everything after -- goes to the flight software
+
+It starts the host's Zenoh session and the flight software, shows progress, prints a summary
+(delta-v and time per phase, docked or why not) and writes the run record (runs/<time>-<scenario>/).
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import time
+
+from host_sim import scenario as scenarios
+from host_sim.server import PHASE_NAMES, ServerConfig
+
+
+def _scenario(text: str):
+    if text.startswith("random:"):
+        try:
+            seed = int(text.split(":", 1)[1])
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"random:<seed> needs an integer seed, got {text!r}") from None
+        return scenarios.random_scenario(seed)
+    try:
+        return scenarios.load(text)
+    except (FileNotFoundError, scenarios.ScenarioError) as exc:
+        raise argparse.ArgumentTypeError(f"{exc} (available: {', '.join(scenarios.available())}, random:<seed>)") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="rvd-run", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+    ap.add_argument("scenario", type=_scenario, help="scenario name, TOML path, or random:<seed>")
+    ap.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    ap.add_argument("--truth", choices=("nonlinear", "cw"), default="nonlinear", help="truth model (default nonlinear)")
+    ap.add_argument("--ideal", action="store_true", help="no sensor or thruster noise, impulsive burns")
+    ap.add_argument("--no-sensor-noise", action="store_true")
+    ap.add_argument("--no-thrust-noise", action="store_true")
+    ap.add_argument("--impulsive", action="store_true", help="apply burns as impulses instead of finite burns")
+    ap.add_argument("--delay", choices=("none", "reported", "estimated"), default="reported",
+                    help="control delay model (default: the flight computer's reported step time)")
+    ap.add_argument("--realtime", type=float, metavar="SPEEDUP", default=None,
+                    help="real-time pacing at SPEEDUP simulated seconds per wall second (default: lockstep)")
+    ap.add_argument("--zenoh-mode", choices=("peer", "router"), default="peer", help="host Zenoh mode")
+    ap.add_argument("--cmd-timeout", type=float, default=10.0, help="lockstep: seconds before nav is resent")
+    ap.add_argument("--flight-sw", default=None, help="flight executable (default: build/native or $RVD_FLIGHT_SW)")
+    ap.add_argument("--runner", default="", help='command prefix for the flight executable, e.g. "qemu-arm -cpu cortex-a9"')
+    ap.add_argument("--out", default=None, help="run record directory (default runs/<time>-<scenario>-<id>)")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress display")
+    return ap
+
+
+class Progress:
+    """One status line, rewritten in place on a terminal, every 25 steps otherwise."""
+
+    def __init__(self, quiet: bool):
+        self.quiet = quiet
+        self.tty = sys.stderr.isatty()
+        self.t0 = time.monotonic()
+
+    def __call__(self, k, summary, cmd) -> None:
+        if self.quiet or (not self.tty and k % 25):
+            return
+        phase = PHASE_NAMES.get(cmd.phase, "?") if cmd is not None else "-"
+        solve = f"{cmd.solve_time_us:8.0f} us" if cmd is not None else "       -"
+        line = (f"step {k:5d}  {phase:<10}  dv {sum(summary.dv_per_phase_mps.values()):7.3f} m/s  "
+                f"solve {solve}  wall {time.monotonic() - self.t0:6.1f} s")
+        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr, flush=True)
+
+    def done(self) -> None:
+        if self.tty and not self.quiet:
+            print(file=sys.stderr)
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    split = argv.index("--") if "--" in argv else len(argv)
+    args = build_parser().parse_args(argv[:split])
+    flight_args = argv[split + 1:]
+    cfg = ServerConfig(mode=args.zenoh_mode, lockstep=args.realtime is None, speedup=args.realtime or 1.0,
+                       cmd_timeout_s=args.cmd_timeout, delay_model=args.delay)
+    progress = Progress(args.quiet)
+    from host_sim.pil import run_pil  # after argument errors, so --help stays fast
+
+    interrupted = []
+
+    def on_started(server, proc):
+        def stop(signum, frame):
+            interrupted.append(signum)
+            server.stop()
+        signal.signal(signal.SIGINT, stop)
+        signal.signal(signal.SIGTERM, stop)
+
+    try:
+        summary, run_dir = run_pil(
+            args.scenario, seed=args.seed, truth=args.truth,
+            sensor_noise=not (args.ideal or args.no_sensor_noise), thrust_noise=not (args.ideal or args.no_thrust_noise),
+            impulsive=args.ideal or args.impulsive, flight_exe=args.flight_sw, flight_args=flight_args,
+            runner=args.runner, config=cfg, run_dir=args.out, on_step=progress, on_started=on_started,
+        )
+    except FileNotFoundError as exc:
+        print(f"rvd-run: {exc}", file=sys.stderr)
+        return 2
+    progress.done()
+    print(f"scenario {args.scenario.name}: {summary.end} after {summary.steps} steps, "
+          f"t = {summary.t_s:.0f} s, final distance to the port {summary.final_range_to_port_m:.3f} m")
+    print(summary.table())
+    if summary.hello is not None:
+        h = summary.hello
+        print(f"flight software: {h.arch} {h.cpu_model}, {h.compiler}; horizons {tuple(h.horizon)}")
+    if summary.telemetry is not None:
+        t = summary.telemetry
+        for i, ph in enumerate(("rendezvous", "approach", "docking")):
+            if t.steps[i]:
+                print(f"  {ph:<10} {t.steps[i]:4d} solves  mean {t.mean_solve_us[i]:9.1f} us  "
+                      f"max {t.max_solve_us[i]:9.1f} us (step {t.max_step[i]})  overruns {t.overruns[i]}")
+    if summary.nav_resends or summary.rejected_messages or summary.late_commands:
+        print(f"link: {summary.nav_resends} nav resends, {summary.late_commands} late commands, "
+              f"{summary.rejected_messages} rejected messages")
+    print(f"run record: {run_dir}")
+    return 0 if summary.docked else (130 if interrupted else 1)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,146 @@
+"""Run one scenario processor-in-the-loop: host simulator + flight software process, over Zenoh.
+
+    summary, run_dir = run_pil("case1_vbar", truth="cw", sensor_noise=False, thrust_noise=False)
+
+starts the host's Zenoh session on a free loopback port, launches the flight executable (native, or
+behind a runner prefix such as ``qemu-arm -cpu cortex-a9``) pointed at it, serves the run in lockstep,
+writes the run record and stops the flight process. Used by the `rvd-run` command, the tests and the
+campaigns in bench/.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import shlex
+import shutil
+import signal
+import subprocess
+import time
+import uuid
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+from host_sim.record import RunRecorder
+from host_sim.scenario import Scenario, load
+from host_sim.server import FLIGHT_COLUMNS, PilServer, RunSummary, ServerConfig, free_tcp_port
+from host_sim.simulator import Simulator
+
+REPO = Path(__file__).resolve().parent.parent
+FLIGHT_EXE_NAME = "rvd_flight_sw"
+
+
+def find_flight_executable(explicit: Optional[str] = None) -> Path:
+    """The native flight executable: `explicit`, $RVD_FLIGHT_SW, this checkout's build/native, or PATH."""
+    candidates = [explicit, os.environ.get("RVD_FLIGHT_SW"), str(REPO / "build" / "native" / "flight_sw" / FLIGHT_EXE_NAME),
+                  shutil.which(FLIGHT_EXE_NAME)]
+    for c in candidates:
+        if c and Path(c).is_file() and os.access(c, os.X_OK):
+            return Path(c)
+    raise FileNotFoundError(
+        f"no flight executable found (looked at --flight-sw, $RVD_FLIGHT_SW, {REPO / 'build/native/flight_sw'}, PATH); "
+        "build it with `make build`"
+    )
+
+
+def default_run_dir(scenario_name: str, root: Path | str = "runs") -> Path:
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path(root) / f"{stamp}-{scenario_name}-{uuid.uuid4().hex[:6]}"
+
+
+def stop_process(proc: subprocess.Popen, grace_s: float = 5.0) -> int:
+    """Wait for a process to leave on its own, then SIGTERM, then SIGKILL. Returns its exit code."""
+    for sig, wait in ((None, grace_s), (signal.SIGTERM, 3.0), (signal.SIGKILL, 3.0)):
+        if sig is not None and proc.poll() is None:
+            proc.send_signal(sig)
+        try:
+            return proc.wait(timeout=wait)
+        except subprocess.TimeoutExpired:
+            continue
+    return proc.wait()
+
+
+def run_pil(
+    scenario: Scenario | str,
+    *,
+    seed: int = 0,
+    truth: str = "cw",
+    sensor_noise: bool = True,
+    thrust_noise: bool = True,
+    impulsive: bool = False,
+    sim_options: Optional[dict] = None,
+    flight_exe: Optional[str] = None,
+    flight_args: Sequence[str] = (),
+    runner: Sequence[str] | str = (),
+    flight_command: Optional[Callable[[list[str]], list[str]]] = None,
+    host_address: str = "127.0.0.1",
+    flight_endpoint: Optional[str] = None,
+    config: Optional[ServerConfig] = None,
+    run_dir: Optional[Path | str] = None,
+    meta: Optional[dict] = None,
+    on_step: Optional[Callable] = None,
+    on_started: Optional[Callable[[PilServer, subprocess.Popen], None]] = None,
+) -> tuple[RunSummary, Path]:
+    """Run `scenario` against the flight software and return (summary, run directory).
+
+    runner: a command prefix for the flight executable (e.g. "qemu-arm -cpu cortex-a9");
+    flight_command: instead of exe and runner, a function from the flight software's arguments to the
+    whole command (QEMU system mode puts them on the kernel command line). The flight software
+    connects to `flight_endpoint` (default: the host's listening endpoint; QEMU system mode passes
+    tcp/10.0.2.2:PORT). config: server settings (the endpoint and run id are filled in here).
+    """
+    scen = load(scenario) if isinstance(scenario, str) else scenario
+    sim = Simulator(scen, truth=truth, seed=seed, sensor_noise=sensor_noise, thrust_noise=thrust_noise,
+                    impulsive=impulsive, **(sim_options or {}))
+    cfg = config or ServerConfig()
+    port = free_tcp_port(host_address)
+    cfg.endpoint = f"tcp/{host_address}:{port}"
+    cfg.run_id = cfg.run_id if cfg.run_id != "run" else uuid.uuid4().hex[:12]
+    args = ["--connect", flight_endpoint or cfg.endpoint, "--run", cfg.run_id, *flight_args]
+    if flight_command is not None:
+        cmd = list(flight_command(args))
+    else:
+        prefix = shlex.split(runner) if isinstance(runner, str) else list(runner)
+        cmd = prefix + [str(find_flight_executable(flight_exe)), *args]
+
+    run_dir = Path(run_dir) if run_dir else default_run_dir(scen.name)
+    record_meta = dict(sim.record_meta())
+    record_meta.update(run_id=cfg.run_id, flight_command=cmd, truth=truth, lockstep=cfg.lockstep,
+                       delay_model=cfg.delay_model, zenoh_mode=cfg.mode)
+    record_meta.update(meta or {})
+    recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=FLIGHT_COLUMNS)
+    proc = None
+
+    def flight_exited():
+        code = None if proc is None else proc.poll()
+        return None if code is None else f"exit code {code}"
+
+    server = PilServer(sim, cfg, record=recorder, on_step=on_step, flight_exited=flight_exited)
+    status = "failed"
+    try:
+        server.link.open()
+        with open(run_dir / "flight_sw.log", "wb") as log:
+            proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+            if on_started is not None:
+                on_started(server, proc)
+            summary = server.run()
+            stop_process(proc)
+        status = "finished"
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        s = server.summary
+        hello = s.hello
+        recorder.close(
+            status,
+            end=s.end, docked=s.docked, steps=s.steps, t_end_s=s.t_s, dv_total_mps=s.dv_total_mps, dv_l1_mps=s.dv_l1_mps,
+            dv_per_phase_mps=s.dv_per_phase_mps, time_per_phase_s=s.time_per_phase_s,
+            final_range_to_port_m=s.final_range_to_port_m, nav_resends=s.nav_resends,
+            late_commands=s.late_commands, rejected_messages=s.rejected_messages,
+            flight_exit_code=None if proc is None else proc.returncode,
+            flight_hello=None if hello is None else {k: getattr(hello, k) for k in
+                                                      ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction",
+                                                       "period_s", "solver_mode", "solver_max_iter", "session")},
+            flight_telemetry=None if s.telemetry is None else vars(s.telemetry),
+        )
+    return summary, run_dir

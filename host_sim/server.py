@@ -1,0 +1,408 @@
+"""The host side of the PIL link: serves navigation over Zenoh and applies the flight software's commands.
+
+One control step k (lockstep, the default):
+
+    measure -> put nav k -> wait for cmd k (resend nav k on timeout) -> apply pulses -> record step k
+
+Simulated time advances only when cmd k has arrived, so an emulated CPU 40x slower than real time
+still gives exact results. A flight software that stays silent through every resend is a recorded
+fault ("flight software lost"), never a hang. In real-time pacing mode the server does not wait: each
+period lasts `period_s / speedup` of wall time, and a command that misses it is recorded as late and
+not applied.
+
+The command is applied after a control delay taken from the command itself (`delay_model`):
+"none" applies it at t_k (the dissertation's assumption), "reported" at t_k + the flight computer's
+measured guidance step time, "estimated" at t_k + instructions x CPI / f_clk of a CPU model.
+"""
+from __future__ import annotations
+
+import math
+import queue
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+
+from host_sim import messages as msg
+
+PHASE_NAMES = {1: "rendezvous", 2: "approach", 3: "docking", 4: "docked"}
+SOLVER_STATUS = {0: "solved", 1: "max_iter", 2: "infeasible", 3: "invalid_input", 4: "numerical_error",
+                 5: "time_limit", 255: "not_run"}
+GUIDANCE_STATUS = {0: "ok", 1: "shifted_plan", 2: "zero_thrust", 3: "invalid_state", 4: "docked", 5: "recovered"}
+
+
+def free_tcp_port(host: str = "127.0.0.1") -> int:
+    """A TCP port nobody listens on right now (bind to port 0 and let the kernel pick)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+class ZenohLink:
+    """The host's Zenoh session for one run: publishes nav/bye, queues what the flight side sends.
+
+    `mode` is "peer" or "router"; either way it listens on `endpoint` (e.g. "tcp/127.0.0.1:7447") and the
+    flight software connects to it as a Zenoh client. Messages that do not decode are counted and kept
+    (with the reason) in `rejected`, never raised into the control loop.
+    """
+
+    def __init__(self, run_id: str, endpoint: str, mode: str = "peer"):
+        import zenoh  # imported here so that host_sim's physics does not need Zenoh
+
+        if mode not in ("peer", "router"):
+            raise ValueError(f"mode must be 'peer' or 'router', not {mode!r}")
+        self.run_id, self.endpoint, self.mode = run_id, endpoint, mode
+        self._zenoh = zenoh
+        self.inbox: "queue.Queue[tuple[float, object]]" = queue.Queue()
+        self.rejected: list[tuple[str, str]] = []
+        self.session = None
+        self._subs = []
+
+    def open(self) -> None:
+        z = self._zenoh
+        conf = z.Config()
+        conf.insert_json5("mode", f'"{self.mode}"')
+        conf.insert_json5("listen/endpoints", f'["{self.endpoint}"]')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        self.session = z.open(conf)
+        for kind in ("hello", "cmd", "telemetry", "bye"):
+            self._subs.append(self.session.declare_subscriber(msg.key(kind, self.run_id), self._on_sample))
+
+    def _on_sample(self, sample) -> None:
+        data = sample.payload.to_bytes()
+        try:
+            m = msg.decode(data)
+        except msg.MessageError as exc:
+            self.rejected.append((str(sample.key_expr), str(exc)))
+            return
+        self.inbox.put((time.monotonic(), m))
+
+    def put(self, kind: str, message) -> None:
+        self.session.put(msg.key(kind, self.run_id), msg.encode(message))
+
+    def put_raw(self, kind: str, data: bytes) -> None:
+        """Publish arbitrary bytes on a message key (fault-injection tests)."""
+        self.session.put(msg.key(kind, self.run_id), data)
+
+    def get(self, timeout_s: float):
+        """Next decoded message from the flight side, or None after `timeout_s`."""
+        try:
+            return self.inbox.get(timeout=max(timeout_s, 0.0))[1]
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except Exception:  # the session may already be gone; closing must not fail
+                pass
+        self._subs.clear()
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+
+    def restart(self) -> None:
+        """Close and reopen the session on the same endpoint (the flight side must reconnect)."""
+        self.close()
+        self.open()
+
+
+@dataclass
+class ServerConfig:
+    run_id: str = "run"
+    endpoint: str = "tcp/127.0.0.1:7447"
+    mode: str = "peer"                 # Zenoh mode of the host session: "peer" or "router"
+    lockstep: bool = True              # False: real-time pacing
+    speedup: float = 1.0               # real-time pacing: simulated seconds per wall second
+    hello_timeout_s: float = 60.0      # wait for the flight software to connect (QEMU boots take seconds)
+    cmd_timeout_s: float = 10.0        # lockstep: wait this long for cmd k before resending nav k
+    nav_retries: int = 3               # lockstep: resends of nav k before declaring the flight software lost
+    delay_model: str = "none"          # "none", "reported" or "estimated"
+    cpi: float = 1.0                   # "estimated" delay: cycles per instruction of the target CPU model
+    clock_hz: float = 1.0e9            # "estimated" delay: target clock
+    docking_tolerance_m: float = 0.5   # truth distance chaser-port that counts as docked
+    collision_radius_m: float = 0.3    # truth distance to the target CoM that counts as a collision
+    max_steps: int = 100000
+    drop_nav: Callable[[int, int], bool] = field(default=lambda k, attempt: False)  # fault injection
+
+
+@dataclass
+class RunSummary:
+    end: str                            # "docked", "collision", "timeout", "flight software lost", ...
+    steps: int
+    t_s: float
+    dv_total_mps: float
+    dv_per_phase_mps: dict
+    time_per_phase_s: dict
+    docked: bool
+    final_range_to_port_m: float
+    dv_l1_mps: float = 0.0              # sum of thruster delta-v magnitudes (propellant view)
+    hello: Optional[object] = None
+    telemetry: Optional[object] = None
+    nav_resends: int = 0
+    late_commands: int = 0
+    rejected_messages: int = 0
+    stale_commands: int = 0
+    events: list = field(default_factory=list)
+
+    def table(self) -> str:
+        lines = [f"{'phase':<12}{'delta-v [m/s]':>15}{'time [s]':>12}"]
+        for ph in ("rendezvous", "approach", "docking"):
+            lines.append(f"{ph:<12}{self.dv_per_phase_mps.get(ph, 0.0):>15.4f}{self.time_per_phase_s.get(ph, 0.0):>12.1f}")
+        lines.append(f"{'total':<12}{self.dv_total_mps:>15.4f}{self.t_s:>12.1f}")
+        return "\n".join(lines)
+
+
+#: Per-step columns the server adds to the run record (flight-side telemetry of each command).
+FLIGHT_COLUMNS: tuple[str, ...] = (
+    "phase", "guidance_status", "solver_status", "overrun", "overruns", "cmd_period_s",
+    "solve_time_us", "step_time_us", "instructions", "iterations",
+    "primal_residual", "dual_residual", "objective",
+    "dv_cmd_x_mps", "dv_cmd_y_mps", "dv_cmd_z_mps", "dv_alloc_x_mps", "dv_alloc_y_mps", "dv_alloc_z_mps",
+    "nav_attempts", "round_trip_ms",
+)
+
+
+class PilServer:
+    """Runs one scenario against a flight software connected over Zenoh.
+
+    `sim` is a host_sim Simulator; `record` a RunRecorder created with `extra_columns=FLIGHT_COLUMNS`
+    (or None). `on_step(k, summary_so_far)` is called after every step (progress display).
+    """
+
+    def __init__(self, sim, config: ServerConfig, record=None, on_step=None,
+                 flight_exited: Optional[Callable[[], Optional[str]]] = None):
+        """`flight_exited()` returns None while the flight software runs, else why it is gone (e.g. its
+        exit code): the server then stops waiting at once instead of running out its timeouts."""
+        self.sim, self.cfg, self.record, self.on_step = sim, config, record, on_step
+        self.flight_exited = flight_exited or (lambda: None)
+        self.link = ZenohLink(config.run_id, config.endpoint, config.mode)
+        self.summary = RunSummary(end="running", steps=0, t_s=0.0, dv_total_mps=0.0,
+                                  dv_per_phase_mps={p: 0.0 for p in ("rendezvous", "approach", "docking")},
+                                  time_per_phase_s={p: 0.0 for p in ("rendezvous", "approach", "docking")},
+                                  docked=False, final_range_to_port_m=math.nan)
+        self._stop = threading.Event()
+
+    # -- helpers -----------------------------------------------------------------------------------
+    def event(self, kind: str, detail: str = "", step: Optional[int] = None) -> None:
+        self.summary.events.append((self.sim.t_s, kind, detail))
+        if self.record is not None:
+            self.record.log_event(kind, detail, step=step, t_s=self.sim.t_s)
+
+    def stop(self) -> None:
+        """Ask a running run() to end after the current step (e.g. on SIGINT)."""
+        self._stop.set()
+
+    def _take(self, message):
+        """Route side messages (hello, telemetry, bye); return a Cmd or a Bye, else None."""
+        if isinstance(message, msg.Hello):
+            self.summary.hello = message
+            self.event("hello", f"{message.arch} {message.cpu_model} session {message.session}")
+        elif isinstance(message, msg.Telemetry):
+            self.summary.telemetry = message
+        elif isinstance(message, (msg.Cmd, msg.Bye)):
+            return message
+        return None
+
+    def _wait_for_cmd(self, k: int, deadline: float):
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return None
+            m = self._take(self.link.get(min(left, 0.2)))
+            if m is None and self.inbox_empty() and self.flight_exited() is not None:
+                return None
+            if isinstance(m, msg.Bye):
+                self.event("flight_bye", f"reason {m.reason}: {m.text}")
+                return m
+            if isinstance(m, msg.Cmd):
+                if m.step == k:
+                    return m
+                self.summary.stale_commands += 1  # an answer to an older nav (a resend crossed it)
+
+    @staticmethod
+    def _nav_message(k: int, meas) -> msg.Nav:
+        return msg.Nav(
+            step=k, flags=1 if k == 0 else 0, t_s=float(meas.t_s),
+            position_lvlh_m=tuple(float(v) for v in meas.position_lvlh_m),
+            velocity_lvlh_mps=tuple(float(v) for v in meas.velocity_lvlh_mps),
+            q_lvlh_body=tuple(float(v) for v in meas.q_lvlh_body),
+            omega_body_rad_s=tuple(float(v) for v in meas.omega_body_rad_s),
+        )
+
+    def _delay_s(self, cmd) -> float:
+        model = self.cfg.delay_model
+        if model == "none":
+            return 0.0
+        if model == "reported":
+            delay = cmd.step_time_us * 1e-6
+        elif model == "estimated":
+            delay = cmd.instructions * self.cfg.cpi / self.cfg.clock_hz if cmd.instructions else cmd.step_time_us * 1e-6
+        else:
+            raise ValueError(f"unknown delay model {model!r}")
+        return min(delay, cmd.period_s)  # a command later than its period is an overrun, applied at the end
+
+    # -- the run -----------------------------------------------------------------------------------
+    def run(self) -> RunSummary:
+        """Serve the run to its end; the link is opened here unless the caller opened it already."""
+        if self.link.session is None:
+            self.link.open()
+        try:
+            self._run()
+        except Exception as exc:  # record why, then let the caller see it
+            self.summary.end = f"host error: {type(exc).__name__}: {exc}"
+            self.event("host_error", self.summary.end)
+            raise
+        finally:
+            self._finish()
+        return self.summary
+
+    def inbox_empty(self) -> bool:
+        return self.link.inbox.empty()
+
+    def _finish(self) -> None:
+        s = self.summary
+        s.t_s = self.sim.t_s
+        s.final_range_to_port_m = self.sim.range_to_port_m()
+        s.dv_total_mps = sum(s.dv_per_phase_mps.values())
+        s.rejected_messages = len(self.link.rejected)
+        for key, reason in self.link.rejected:
+            self.event("rejected_message", f"{key}: {reason}")
+        try:
+            if self.link.session is not None:
+                self.link.put("bye", msg.Bye(reason=1 if s.docked else 0, last_step=max(s.steps - 1, 0),
+                                             text=s.end[:60]))
+                # The flight side answers bye with its final telemetry and its own bye.
+                t_end = time.monotonic() + 2.0
+                while time.monotonic() < t_end:
+                    if isinstance(self._take(self.link.get(t_end - time.monotonic())), msg.Bye):
+                        break
+        finally:
+            self.link.close()
+
+    def _exchange_lockstep(self, k: int, nav):
+        """Put nav k and wait for cmd k, resending nav k on timeout. Returns (cmd or Bye or None, attempts)."""
+        cfg = self.cfg
+        for attempt in range(cfg.nav_retries + 1):
+            if self.flight_exited() is not None and self.inbox_empty():
+                return None, attempt
+            if attempt > 0:
+                self.summary.nav_resends += 1
+                self.event("nav_resend", f"no cmd {k} within {cfg.cmd_timeout_s:g} s, attempt {attempt}", step=k)
+            if not cfg.drop_nav(k, attempt):
+                self.link.put("nav", nav)
+            cmd = self._wait_for_cmd(k, time.monotonic() + cfg.cmd_timeout_s)
+            if cmd is not None:
+                return cmd, attempt + 1
+        return None, cfg.nav_retries + 1
+
+    def _run(self) -> None:
+        cfg, sim, s = self.cfg, self.sim, self.summary
+        deadline = time.monotonic() + cfg.hello_timeout_s
+        while s.hello is None and time.monotonic() < deadline:
+            self._take(self.link.get(min(deadline - time.monotonic(), 0.2)))
+            gone = self.flight_exited()
+            if s.hello is None and gone is not None and self.inbox_empty():
+                s.end = f"flight software exited before connecting ({gone})"
+                self.event("fault", s.end)
+                return
+        if s.hello is None:
+            s.end = "flight software never connected"
+            self.event("fault", f"no hello from the flight software within {cfg.hello_timeout_s:g} s")
+            return
+        last_period = float(s.hello.period_s[0])  # until a cmd says otherwise: the rendezvous period
+        wall0 = time.monotonic()
+        for k in range(cfg.max_steps):
+            if self._stop.is_set():
+                s.end = "stopped"
+                return
+            meas = sim.measure()
+            target = sim.target_state()
+            truth = sim.truth_lvlh()
+            nav = self._nav_message(k, meas)
+            t_put = time.monotonic()
+            if cfg.lockstep:
+                cmd, attempts = self._exchange_lockstep(k, nav)
+            else:
+                if not cfg.drop_nav(k, 0):
+                    self.link.put("nav", nav)
+                cmd, attempts = self._wait_for_cmd(k, wall0 + (sim.t_s + last_period) / cfg.speedup), 1
+            rtt_ms = (time.monotonic() - t_put) * 1e3
+            if isinstance(cmd, msg.Bye):
+                s.end = f"flight software ended the run ({cmd.text})"
+                self._log_without_cmd(meas, target, truth)
+                return
+            if cmd is None and cfg.lockstep:
+                gone = self.flight_exited()
+                s.end = "flight software lost"
+                self.event("flight_software_lost",
+                           f"no cmd for step {k}: the flight software exited ({gone})" if gone is not None else
+                           f"no cmd for step {k} after {cfg.nav_retries} resends of {cfg.cmd_timeout_s:g} s", step=k)
+                self._log_without_cmd(meas, target, truth)
+                return
+            if cmd is None:  # real time: a late command is not applied, the chaser coasts this period
+                s.late_commands += 1
+                self.event("late_cmd", f"no cmd for step {k} within its period", step=k)
+                result = sim.apply_command(np.zeros(6), last_period, 0.0)
+                self._log(k, meas, target, result, None, attempts, rtt_ms)
+            else:
+                last_period = cmd.period_s
+                if cmd.phase == 4:  # the flight software declares docked: check it against the truth
+                    s.docked = sim.range_to_port_m() <= cfg.docking_tolerance_m
+                    s.end = "docked" if s.docked else "flight software reports docked, truth disagrees"
+                    self._log(k, meas, target, None, cmd, attempts, rtt_ms, truth=truth)
+                    return
+                result = sim.apply_command(np.asarray(cmd.pulse_s, dtype=float), cmd.period_s, self._delay_s(cmd))
+                phase = PHASE_NAMES.get(cmd.phase)
+                if phase in s.dv_per_phase_mps:
+                    # The resultant |dv|_2 per period, as the dissertation's tables; dv_l1 is what six
+                    # axis thrusters actually burn.
+                    s.dv_per_phase_mps[phase] += float(np.linalg.norm(result.dv_lvlh_mps))
+                    s.dv_l1_mps += float(np.sum(np.abs(result.dv_thruster_mps)))
+                    s.time_per_phase_s[phase] += cmd.period_s
+                self._log(k, meas, target, result, cmd, attempts, rtt_ms)
+            if not cfg.lockstep:
+                self._sleep_until(wall0 + sim.t_s / cfg.speedup)
+            if sim.range_to_com_m() < cfg.collision_radius_m:
+                s.end = "collision"
+                self.event("collision", f"true range to the target CoM {sim.range_to_com_m():.3f} m", step=k)
+                return
+            if sim.t_s >= sim.scenario.timeout_s:
+                s.end = "timeout"
+                self.event("timeout", f"t = {sim.t_s:.0f} s >= {sim.scenario.timeout_s:.0f} s", step=k)
+                return
+        s.end = "step limit"
+
+    @staticmethod
+    def _sleep_until(t_wall: float) -> None:
+        left = t_wall - time.monotonic()
+        if left > 0:
+            time.sleep(left)
+
+    def _log_without_cmd(self, meas, target, truth) -> None:
+        """The step the run ended on without a command: truth and measurement only."""
+        if self.record is not None:
+            self.record.log_step(meas, None, target=target, truth_lvlh=truth)
+
+    def _log(self, k, meas, target, result, cmd, attempts, rtt_ms, truth=None) -> None:
+        self.summary.steps = k + 1
+        if self.record is not None:
+            extra = {"nav_attempts": attempts, "round_trip_ms": rtt_ms}
+            if cmd is not None:
+                extra.update(
+                    phase=cmd.phase, guidance_status=cmd.guidance_status, solver_status=cmd.solver_status,
+                    overrun=cmd.overrun, overruns=cmd.overruns, cmd_period_s=cmd.period_s,
+                    solve_time_us=cmd.solve_time_us, step_time_us=cmd.step_time_us, instructions=cmd.instructions,
+                    iterations=cmd.iterations, primal_residual=cmd.primal_residual,
+                    dual_residual=cmd.dual_residual, objective=cmd.objective,
+                )
+                for i, ax in enumerate("xyz"):
+                    extra[f"dv_cmd_{ax}_mps"] = cmd.dv_cmd_lvlh_mps[i]
+                    extra[f"dv_alloc_{ax}_mps"] = cmd.dv_alloc_lvlh_mps[i]
+            self.record.log_step(meas, result, target=target, truth_lvlh=truth, **extra)
+        if self.on_step is not None:
+            self.on_step(k, self.summary, cmd)

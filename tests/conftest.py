@@ -1,0 +1,23 @@
+"""Shared fixtures. BLAS threads are pinned to one: on a shared 2-core machine OpenBLAS threading made
+scipy's small dense kernels ~100x slower, and the suite never needs BLAS parallelism."""
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session")
+def flight_exe() -> Path:
+    """The native flight executable (built by `make build`, which `make test` runs first)."""
+    from host_sim.pil import find_flight_executable
+
+    try:
+        return find_flight_executable()
+    except FileNotFoundError as exc:
+        pytest.fail(str(exc))

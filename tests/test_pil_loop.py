@@ -1,0 +1,173 @@
+"""The PIL loop end to end: host_sim over real Zenoh to the native flight executable.
+
+Checked against independent truth: the flight software's own in-process closed loop (same guidance,
+CW plant inside C++), and the run record on disk. Faults: a killed flight process, a restarted host
+session, malformed payloads, dropped nav messages, commands too late for real-time pacing.
+"""
+import math
+import signal
+import time
+
+import numpy as np
+import pytest
+
+import flight_sw
+from host_sim import messages as msg
+from host_sim.pil import run_pil
+from host_sim.record import load_events, load_run
+from host_sim.server import ServerConfig
+
+IDEAL = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
+
+
+def _ideal_case1(tmp_path, name, params=None, **kw):
+    """Case 1, CW truth, no noise, impulsive, no control delay; the CW mean motion is the flight software's."""
+    params = params or flight_sw.GuidanceParams()
+    cfg = kw.pop("config", None) or ServerConfig()
+    cfg.delay_model = "none"
+    return run_pil("case1_vbar", **IDEAL, sim_options={"cw_mean_motion_rad_s": params.mean_motion_rad_s()},
+                   config=cfg, run_dir=tmp_path / name, **kw)
+
+
+@pytest.fixture(scope="module")
+def in_process_case1():
+    case = flight_sw.dissertation_case(1)
+    return flight_sw.run_closed_loop(flight_sw.GuidanceParams(), case["x0"], case["q_lvlh_body"], case["omega_body_rad_s"])
+
+
+@pytest.mark.parametrize("mode", ["peer", "router"])
+def test_case1_over_zenoh_reproduces_the_in_process_closed_loop(tmp_path, flight_exe, in_process_case1, mode):
+    ref = in_process_case1
+    assert ref.docked
+    summary, run_dir = _ideal_case1(tmp_path, mode, config=ServerConfig(mode=mode))
+    assert summary.end == "docked", summary.end
+    # The in-process log holds every commanded step, the docked one included.
+    assert summary.steps == ref.steps
+    for phase in ("rendezvous", "approach", "docking"):
+        assert summary.dv_per_phase_mps[phase] == pytest.approx(ref.phases[phase]["dv_mps"], abs=1e-9)
+        assert summary.time_per_phase_s[phase] == pytest.approx(ref.phases[phase]["time_s"], abs=1e-9)
+    assert summary.dv_total_mps == pytest.approx(ref.total["dv_mps"], abs=1e-9)
+    # The record holds the same trajectory, step by step.
+    meta, steps = load_run(run_dir)
+    assert meta["status"] == "finished" and meta["docked"]
+    assert len(steps) == ref.steps
+    truth = steps[["truth_x_m", "truth_y_m", "truth_z_m", "truth_vx_mps", "truth_vy_mps", "truth_vz_mps"]].to_numpy()
+    np.testing.assert_allclose(truth, ref.x, rtol=0, atol=1e-9)
+    assert list(steps["phase"]) == list(ref.phase)
+    assert summary.hello.arch and summary.hello.horizon == (30, 15, 12)
+
+
+def test_flight_software_killed_mid_run_is_a_recorded_fault(tmp_path, flight_exe):
+    killed_at = {}
+
+    def kill_at_step_15(server, proc):
+        def on_step(k, summary, cmd):
+            if k == 15 and not killed_at:
+                proc.send_signal(signal.SIGKILL)
+                killed_at["k"] = k
+        server.on_step = on_step
+
+    t0 = time.monotonic()
+    summary, run_dir = _ideal_case1(tmp_path, "killed", config=ServerConfig(cmd_timeout_s=2.0, nav_retries=2),
+                                    on_started=kill_at_step_15)
+    elapsed = time.monotonic() - t0
+    assert summary.end == "flight software lost"
+    assert elapsed < 30, "the server must notice a dead flight process, not wait out every timeout"
+    meta, steps = load_run(run_dir)
+    assert meta["status"] == "finished" and meta["end"] == "flight software lost"
+    assert meta["flight_exit_code"] == -signal.SIGKILL
+    # Steps 0..15 were completed with commands; step 16 is recorded without one.
+    assert list(steps["step"]) == list(range(17))
+    assert steps["pulse_cmd_px_s"].iloc[:16].notna().all() and math.isnan(steps["pulse_cmd_px_s"].iloc[16])
+    events = load_events(run_dir)
+    assert "flight_software_lost" in set(events["kind"])
+
+
+def test_host_session_restart_mid_run_resumes_after_reconnect(tmp_path, flight_exe, in_process_case1):
+    def restart_at_step_20(server, proc):
+        def on_step(k, summary, cmd):
+            if k == 20:
+                server.link.restart()
+        server.on_step = on_step
+
+    summary, run_dir = _ideal_case1(tmp_path, "restart", config=ServerConfig(cmd_timeout_s=1.0, nav_retries=10),
+                                    on_started=restart_at_step_20)
+    assert summary.end == "docked", summary.end
+    # The flight software reconnected (a second session said hello) and the lockstep loop carried on:
+    # the trajectory is the uninterrupted one.
+    events = load_events(run_dir)
+    hellos = events[events["kind"] == "hello"]["detail"].tolist()
+    assert any(h.endswith("session 2") for h in hellos), hellos
+    assert summary.steps == in_process_case1.steps
+    assert summary.dv_total_mps == pytest.approx(in_process_case1.total["dv_mps"], abs=1e-9)
+
+
+def _nav_bytes_with(field_offset: int, value: float) -> bytes:
+    raw = bytearray(msg.encode(msg.Nav(step=3, t_s=90.0, q_lvlh_body=(1.0, 0.0, 0.0, 0.0))))
+    raw[field_offset:field_offset + 8] = msg.struct.pack("<d", value)
+    return bytes(raw)
+
+
+def test_malformed_short_oversized_and_nan_payloads_are_rejected_and_counted(tmp_path, flight_exe, in_process_case1):
+    good = msg.encode(msg.Nav(step=3, t_s=90.0, q_lvlh_body=(1.0, 0.0, 0.0, 0.0)))
+    bad_payloads = [
+        b"\x01\x02\x03",                                    # short
+        good[:-1],                                          # truncated
+        good + bytes(10_000),                               # oversized (fragmented by Zenoh, reassembled, rejected)
+        _nav_bytes_with(msg.HEADER_SIZE + 16, math.nan),    # NaN position
+        _nav_bytes_with(msg.HEADER_SIZE + 8, math.inf),     # Inf time
+        good[:3] + bytes([9]) + good[4:],                   # another protocol version
+        bytes(np.random.default_rng(1).integers(0, 256, 200_000, dtype=np.uint8)),  # 200 kB of noise
+    ]
+
+    def inject(server, proc):
+        def on_step(k, summary, cmd):
+            if k == 10:
+                for p in bad_payloads:
+                    server.link.put_raw("nav", p)
+                server.link.put_raw("cmd", b"garbage on the host's own key")
+        server.on_step = on_step
+
+    summary, run_dir = _ideal_case1(tmp_path, "malformed", on_started=inject)
+    assert summary.end == "docked", summary.end
+    assert summary.telemetry.nav_rejected == len(bad_payloads)
+    assert summary.rejected_messages == 1  # the garbage cmd, rejected by the host's decoder
+    assert summary.dv_total_mps == pytest.approx(in_process_case1.total["dv_mps"], abs=1e-9)
+    events = load_events(run_dir)
+    assert (events["kind"] == "rejected_message").sum() == 1
+
+
+def test_one_percent_of_nav_messages_dropped_lockstep_recovers(tmp_path, flight_exe, in_process_case1):
+    rng = np.random.default_rng(2024)
+    dropped = {k for k in range(400) if rng.random() < 0.01} | {5}  # at least one early drop for sure
+    cfg = ServerConfig(cmd_timeout_s=0.3, nav_retries=3, drop_nav=lambda k, attempt: attempt == 0 and k in dropped)
+    summary, run_dir = _ideal_case1(tmp_path, "drops", config=cfg)
+    assert summary.end == "docked", summary.end
+    expected = len([k for k in dropped if k < summary.steps])
+    assert summary.nav_resends == expected
+    # A dropped nav is resent and answered once: the run is exactly the undisturbed one.
+    assert summary.steps == in_process_case1.steps
+    assert summary.dv_total_mps == pytest.approx(in_process_case1.total["dv_mps"], abs=1e-9)
+    events = load_events(run_dir)
+    assert (events["kind"] == "nav_resend").sum() == expected
+
+
+def test_real_time_pacing_records_late_commands_without_hanging(tmp_path, flight_exe):
+    # 10^6 simulated seconds per wall second: a 30 s period lasts 30 us, far less than the link's
+    # round trip, so commands miss their slot; the chaser coasts, the run ends at its timeout.
+    cfg = ServerConfig(lockstep=False, speedup=1e6)
+    t0 = time.monotonic()
+    summary, run_dir = _ideal_case1(tmp_path, "realtime", config=cfg)
+    assert time.monotonic() - t0 < 60
+    assert summary.late_commands > 0
+    assert summary.end in ("timeout", "collision", "docked")
+    events = load_events(run_dir)
+    assert (events["kind"] == "late_cmd").sum() == summary.late_commands
+
+
+def test_real_time_pacing_at_a_feasible_speed_docks(tmp_path, flight_exe, in_process_case1):
+    # 200x real time: a 5 s docking period lasts 25 ms of wall time, ample for a native solve.
+    summary, _ = _ideal_case1(tmp_path, "realtime_ok", config=ServerConfig(lockstep=False, speedup=200.0))
+    assert summary.end == "docked", summary.end
+    assert summary.late_commands == 0
+    assert summary.dv_total_mps == pytest.approx(in_process_case1.total["dv_mps"], abs=1e-9)
