@@ -5,7 +5,7 @@ records of a campaign directory (bench/campaign.py).
 
 Three timing sources, never mixed up (DESIGN.md §7):
   - emulated wall time: the flight software's own clock under qemu-user (host time, noisy);
-  - instructions: counted by our TCG plugin per guidance step (deterministic);
+  - instructions: counted by our TCG plugin around every solver call of a guidance step (deterministic);
   - estimated target time = instructions x CPI / f_clk of the target's CPU model (stated with its
     uncertainty band; not calibrated on hardware until the registry says so).
 """
@@ -146,7 +146,7 @@ def plot_histograms(rows: pd.DataFrame, target: str, path: Path) -> None:
             ax.set_ylabel("solves")
             if i == 0:
                 ax.set_title(phase)
-    fig.suptitle(f"{target}: guidance step time per phase and horizon")
+    fig.suptitle(f"{target}: solve time per phase and horizon")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -284,8 +284,8 @@ def write(out: Path) -> Path:
              f"<p>{len(metas)} runs, {len(rows)} timed guidance steps. Host {html.escape(platform.platform())}; "
              f"{html.escape(report['environment']['qemu'])}.</p>",
              "<h2>Timing model</h2><p>QEMU is not cycle-accurate: host wall time under emulation is not target "
-             "time. The plugin counts guest instructions per guidance step (QP build + solve + allocation) "
-             "exactly; the estimated target time is instructions &times; CPI / f<sub>clk</sub> with the CPU "
+             "time. The plugin counts guest instructions exactly between markers the flight software places around "
+             "every solver call of a guidance step (the phase QP, plus the recovery QP when it runs); the estimated target time is instructions &times; CPI / f<sub>clk</sub> with the CPU "
              "model below. The CPI figures are engineering estimates with a low-high band, <b>not calibrated "
              "on hardware</b>; deadline misses are counted against the <i>high</i> end of the band.</p>"]
     tm = pd.DataFrame([{"target": t, "cpu": m.get("cpu"), "clock MHz": m["clock_hz"] / 1e6,

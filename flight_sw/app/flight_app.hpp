@@ -49,6 +49,21 @@ struct PhaseLog {
 enum class ExitReason { Bye = 0, Signal = 1, LinkLost = 3, Idle = 4, NeverConnected = 5 };
 const char* to_string(ExitReason r);
 
+// Brackets each solver call with the QEMU instruction-count markers and sums the counts of a step.
+class MarkerObserver : public guidance::SolveObserver {
+ public:
+  explicit MarkerObserver(bool enabled) : marker_(enabled) {}
+  void start_step(uint32_t step) { step_ = step; instructions_ = 0; }
+  void before_solve() override { marker_.begin(step_); }
+  void after_solve() override { instructions_ += marker_.end(step_); }
+  uint64_t instructions() const { return instructions_; }
+
+ private:
+  SolveMarker marker_;
+  uint32_t step_ = 0;
+  uint64_t instructions_ = 0;
+};
+
 class FlightApp {
  public:
   explicit FlightApp(AppConfig config);  // throws std::invalid_argument on unusable parameters
@@ -71,7 +86,7 @@ class FlightApp {
   AppConfig cfg_;
   std::unique_ptr<guidance::Guidance> guidance_;
   std::unique_ptr<link::ZenohSession> session_;
-  SolveMarker marker_;
+  MarkerObserver markers_;
   PhaseLog log_;
   std::optional<msg::Cmd> last_cmd_;
   msg::Nav pending_nav_{};

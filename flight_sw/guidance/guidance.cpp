@@ -117,7 +117,9 @@ bool Guidance::solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Ve
   qp.build(x, target);
   x0_ = x;
   sol.settings().time_limit_us = budget_left_us;
+  if (observer_) observer_->before_solve();
   sol.solve(qp.qp(), x0_);
+  if (observer_) observer_->after_solve();
   info = sol.info();
   const bool converged = info.status == solver::Status::Solved ||
                          (info.status == solver::Status::MaxIter &&

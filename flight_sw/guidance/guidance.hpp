@@ -59,10 +59,22 @@ struct Command {
   double port_distance_m = 0.0;    // distance to the docking port
 };
 
+// Called around every solver call of a step (the phase QP, and the recovery QP when it runs), so that
+// the flight executable can bracket exactly the solves with its instruction-count markers.
+class SolveObserver {
+ public:
+  virtual ~SolveObserver() = default;
+  virtual void before_solve() = 0;
+  virtual void after_solve() = 0;
+};
+
 class Guidance {
  public:
   explicit Guidance(const GuidanceParams& params);  // throws std::invalid_argument when params are unusable
   ~Guidance();
+
+  // Not owned; nullptr (the default) observes nothing.
+  void set_solve_observer(SolveObserver* observer) { observer_ = observer; }
 
   // One control period. time_limit_us > 0 is the wall-time budget of the whole step; the solve gets what
   // the checks and the QP build left of it, and a solve that runs out yields the shifted previous plan.
@@ -95,6 +107,7 @@ class Guidance {
   std::vector<Eigen::Vector3d> plan_;  // delta-v plan of the last accepted solve (capacity: longest N)
   int plan_len_ = 0, plan_next_ = 0;
   Phase plan_phase_ = Phase::Rendezvous;
+  SolveObserver* observer_ = nullptr;
 };
 
 // The dissertation's scenarios (Table 3.2; sec 3.6): 1 V-bar, 2 R-bar, 3 rotating target (spin about body z).
