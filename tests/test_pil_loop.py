@@ -171,3 +171,33 @@ def test_real_time_pacing_at_a_feasible_speed_docks(tmp_path, flight_exe, in_pro
     assert summary.end == "docked", summary.end
     assert summary.late_commands == 0
     assert summary.dv_total_mps == pytest.approx(in_process_case1.total["dv_mps"], abs=1e-9)
+
+
+def test_deadline_monitor_counts_overruns_and_falls_back(tmp_path, flight_exe):
+    # A budget of 1e-9 x Ts (30 ns) cannot hold any solve: every step is an overrun and the flight
+    # software commands the shifted plan or zero thrust instead of a late solution.
+    summary, run_dir = _ideal_case1(tmp_path, "overrun", config=ServerConfig(max_steps=6),
+                                    flight_args=["--deadline-fraction", "1e-9"])
+    assert summary.end == "step limit"
+    _, steps = load_run(run_dir)
+    assert (steps["overrun"] == 1).all()
+    assert list(steps["overruns"]) == list(range(1, 7))
+    assert set(steps["guidance_status"]) <= {1, 2}  # shifted plan / zero thrust
+    assert set(steps["solver_status"]) == {5}  # time_limit
+    for col in ("pulse_cmd_px_s", "pulse_cmd_mx_s", "pulse_cmd_py_s", "pulse_cmd_my_s"):
+        assert np.isfinite(steps[col]).all()
+
+
+def test_sigterm_ends_the_flight_software_cleanly(tmp_path, flight_exe):
+    def term_at_step_8(server, proc):
+        def on_step(k, summary, cmd):
+            if k == 8:
+                proc.send_signal(signal.SIGTERM)
+        server.on_step = on_step
+
+    summary, run_dir = _ideal_case1(tmp_path, "sigterm", on_started=term_at_step_8)
+    assert summary.end.startswith("flight software ended the run"), summary.end
+    meta, steps = load_run(run_dir)
+    assert meta["flight_exit_code"] == 0
+    assert "signal" in summary.end
+    assert summary.telemetry is not None and summary.telemetry.steps[0] >= 9

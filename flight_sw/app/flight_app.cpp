@@ -26,6 +26,7 @@ double seconds_since(Clock::time_point t0) { return std::chrono::duration<double
 double finite_or(double v, double fallback = -1.0) { return std::isfinite(v) ? v : fallback; }
 
 uint8_t solver_status_code(const guidance::Command& c) {
+  if (c.solver.status == solver::Status::TimeLimit) return static_cast<uint8_t>(c.solver.status);  // even unsolved
   if (!c.solved) return 255;
   return static_cast<uint8_t>(c.solver.status);
 }
@@ -176,7 +177,7 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   const guidance::Command c = guidance_->step(in, budget_us);
   const uint64_t insns = markers_.instructions();
 
-  const bool overrun = (c.solved && c.solver.status == solver::Status::TimeLimit) || c.step_time_us > budget_us;
+  const bool overrun = c.solver.status == solver::Status::TimeLimit || c.step_time_us > budget_us;
   overruns_ += overrun ? 1 : 0;
   if (c.solved) log_.add(phase_before, nav.step, c.solver.solve_time_us, overrun, insns);
   peak_heap_bytes_ = std::max(peak_heap_bytes_, heap_in_use_bytes());
