@@ -1,0 +1,40 @@
+"""QEMU user mode: run one static guest executable as a host process.
+
+    >>> t = load("rpi3")
+    >>> command(t, exe, ["--run", "r1"])
+    ['qemu-aarch64', '-cpu', 'cortex-a53', '/.../rvd_flight_sw', '--run', 'r1']
+    >>> command(t, exe, args, plugin=InsnCounter(log=Path("counts.txt")))   # + instruction counts
+
+Always the dynamic qemu-arm / qemu-aarch64 (TCG plugins do not load in the -static ones), always
+an explicit -cpu (QEMU's default `max` would accept instructions the real CPU lacks). The guest
+reaches host TCP services at 127.0.0.1 directly. Times measured inside the guest here are host
+wall time, not target time: use the plugin's instruction counts with the target's CPI model.
+"""
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import Sequence
+
+from .plugin import InsnCounter
+from .targets import Target
+
+
+def command(target: Target, exe: Path | str, args: Sequence[str] = (), *,
+            plugin: InsnCounter | None = None) -> list[str]:
+    """The command line that runs `exe` for `target` (natively for the host target)."""
+    if not target.emulated:
+        if plugin is not None:
+            raise ValueError("instruction counting needs QEMU: the host target runs natively")
+        return [str(exe), *map(str, args)]
+    cmd = [target.qemu_user, "-cpu", target.qemu_cpu]
+    if plugin is not None:
+        cmd += plugin.qemu_args()
+    return [*cmd, str(exe), *map(str, args)]
+
+
+def run(target: Target, exe: Path | str, args: Sequence[str] = (), *, plugin: InsnCounter | None = None,
+        timeout_s: float | None = 600, **kwargs) -> subprocess.CompletedProcess:
+    """Runs `exe` to completion and captures its output (text)."""
+    return subprocess.run(command(target, exe, args, plugin=plugin), capture_output=True, text=True,
+                          timeout=timeout_s, **kwargs)
