@@ -209,7 +209,10 @@ class Campaign:
             args = [a.replace("tcp/127.0.0.1:", "tcp/10.0.2.2:") for a in args]
             return launch(args)
 
-        return self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True, flight_command=flight_command, meta=meta)
+        # The PMU counts the solves' user-mode instructions in the guest (where the plugin cannot);
+        # a long host lease keeps Zenoh keep-alives (network interrupts in the guest) rare.
+        return self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True, flight_command=flight_command, meta=meta,
+                        flight_args=["--pmu-instructions"], config=ServerConfig(zenoh_lease_ms=60000))
 
 
 def parse_args(argv=None) -> tuple[Spec, Path, bool]:

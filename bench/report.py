@@ -105,7 +105,7 @@ def checks(metas: list[dict], df: pd.DataFrame) -> dict:
     native_dv = native[0].get("dv_total_mps") if native else None
     for target in sorted({m.get("target") for m in metas if m.get("kind") == "check" and m.get("mode") != "native"}):
         res: dict = {}
-        for mode, col in (("user", "instructions"), ("system", "solve_time_us")):
+        for mode, col in (("user", "instructions"), ("system", "solve_time_us"), ("system", "instructions")):
             dirs = sorted(d for d, m in by_dir.items() if m.get("target") == target and m.get("kind") == "check"
                           and m.get("mode") == mode)
             if len(dirs) < 2:
@@ -116,6 +116,10 @@ def checks(metas: list[dict], df: pd.DataFrame) -> dict:
             res[f"{mode}_{col}_identical"] = same
             res[f"{mode}_{col}_compared"] = int(min(len(a), len(b)))
             res[f"{mode}_{col}_sum"] = float(np.nansum(a))
+            if len(a) == len(b) and len(a):
+                diff = np.abs(np.nan_to_num(a) - np.nan_to_num(b))
+                res[f"{mode}_{col}_steps_identical"] = int(np.sum(diff == 0))
+                res[f"{mode}_{col}_max_difference"] = float(diff.max())
             dvs = [by_dir[d].get("dv_total_mps") for d in dirs]
             if native_dv is not None:
                 res[f"{mode}_dv_minus_native_mps"] = [None if v is None else v - native_dv for v in dvs]
@@ -310,7 +314,13 @@ def write(out: Path) -> Path:
         parts.append("<h2>Scaling with the horizon</h2><img src='scaling.png' style='max-width:100%'>")
         parts.append("<ul>" + "".join(f"<li>{html.escape(k)}: t(N={v['N'][-1]})/t(N={v['N'][0]}) = "
                                       f"{v['ratio_last_first']:.2f}</li>" for k, v in scaling.items()) + "</ul>")
-    parts.append("<h2>Checks</h2>")
+    parts.append("<h2>Checks</h2><p>Case 1 in the ideal setting (CW truth, no noise, impulsive burns, no "
+                 "delay). <i>user_instructions</i>: the plugin's counts, two runs under qemu-user. "
+                 "<i>system_solve_time_us</i>: the guest's own clock in QEMU system mode with -icount "
+                 "(2<sup>shift</sup> ns per instruction, interrupt handling included); "
+                 "<i>system_instructions</i>: the guest PMU's user-mode instruction count (QEMU's Cortex-A53 "
+                 "on virt; the A9 model has no PMU). <i>dv_minus_native</i>: total delta-v under QEMU minus "
+                 "the native build's (floating-point differences between instruction sets and libm).</p>")
     for t, c in chk.items():
         items = []
         for k, v in c.items():

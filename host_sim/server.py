@@ -49,12 +49,12 @@ class ZenohLink:
     (with the reason) in `rejected`, never raised into the control loop.
     """
 
-    def __init__(self, run_id: str, endpoint: str, mode: str = "peer"):
+    def __init__(self, run_id: str, endpoint: str, mode: str = "peer", lease_ms: int | None = None):
         import zenoh  # imported here so that host_sim's physics does not need Zenoh
 
         if mode not in ("peer", "router"):
             raise ValueError(f"mode must be 'peer' or 'router', not {mode!r}")
-        self.run_id, self.endpoint, self.mode = run_id, endpoint, mode
+        self.run_id, self.endpoint, self.mode, self.lease_ms = run_id, endpoint, mode, lease_ms
         self._zenoh = zenoh
         self.inbox: "queue.Queue[tuple[float, object]]" = queue.Queue()
         self.rejected: list[tuple[str, str]] = []
@@ -67,6 +67,8 @@ class ZenohLink:
         conf.insert_json5("mode", f'"{self.mode}"')
         conf.insert_json5("listen/endpoints", f'["{self.endpoint}"]')
         conf.insert_json5("scouting/multicast/enabled", "false")
+        if self.lease_ms:  # keep-alives go out every lease/4 when the link is idle
+            conf.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
         self.session = z.open(conf)
         for kind in ("hello", "cmd", "telemetry", "bye"):
             self._subs.append(self.session.declare_subscriber(msg.key(kind, self.run_id), self._on_sample))
@@ -116,6 +118,7 @@ class ServerConfig:
     run_id: str = "run"
     endpoint: str = "tcp/127.0.0.1:7447"
     mode: str = "peer"                 # Zenoh mode of the host session: "peer" or "router"
+    zenoh_lease_ms: int | None = None  # host session lease (None: Zenoh's 10 s); keep-alives every lease/4
     lockstep: bool = True              # False: real-time pacing
     speedup: float = 1.0               # real-time pacing: simulated seconds per wall second
     hello_timeout_s: float = 60.0      # wait for the flight software to connect (QEMU boots take seconds)
@@ -124,7 +127,9 @@ class ServerConfig:
     delay_model: str = "none"          # "none", "reported" or "estimated"
     cpi: float = 1.0                   # "estimated" delay: cycles per instruction of the target CPU model
     clock_hz: float = 1.0e9            # "estimated" delay: target clock
-    docking_tolerance_m: float = 0.5   # truth distance chaser-port that counts as docked
+    # Truth distance chaser-port that confirms the flight software's "docked": its r3 (0.5 m) plus
+    # 3 sigma of the 3-D position noise it decides on (5 cm per axis: 0.26 m).
+    docking_tolerance_m: float = 0.75
     collision_radius_m: float = 0.3    # truth distance to the target CoM that counts as a collision
     max_steps: int = 100000
     drop_nav: Callable[[int, int], bool] = field(default=lambda k, attempt: False)  # fault injection
@@ -180,7 +185,7 @@ class PilServer:
         exit code): the server then stops waiting at once instead of running out its timeouts."""
         self.sim, self.cfg, self.record, self.on_step = sim, config, record, on_step
         self.flight_exited = flight_exited or (lambda: None)
-        self.link = ZenohLink(config.run_id, config.endpoint, config.mode)
+        self.link = ZenohLink(config.run_id, config.endpoint, config.mode, config.zenoh_lease_ms)
         self.summary = RunSummary(end="running", steps=0, t_s=0.0, dv_total_mps=0.0,
                                   dv_per_phase_mps={p: 0.0 for p in ("rendezvous", "approach", "docking")},
                                   time_per_phase_s={p: 0.0 for p in ("rendezvous", "approach", "docking")},

@@ -9,7 +9,8 @@ runs one program with the arguments from the kernel command line, and powers off
 The kernel is resolved from its Debian meta package (linux-image-arm64, linux-image-armmp) at
 build time, never by a hard-coded ABI suffix. Images are cached under build/qemu-system/ keyed by
 the kernel and busybox package versions. With the default `icount=True` the guest clock is driven
-by the instruction count (-icount shift=0: one instruction = 1 ns of guest time) and the RTC by
+by the instruction count (-icount shift=s: one instruction = 2^s ns of guest time, s = 0 except
+vexpress-a9, see qemu/targets.toml) and the RTC by
 the virtual clock, so in-guest times are identical from run to run: an instruction-count proxy,
 not Cortex-A timing. The guest is 10.0.2.15/24 and reaches the host's services at 10.0.2.2.
 """
@@ -233,7 +234,7 @@ def command(target: Target, img: Image, initrd: Path, args: Sequence[str] = (), 
     if net:
         cmd += ["-netdev", "user,id=n0", "-device", "virtio-net-device,netdev=n0"]
     if icount:
-        cmd += ["-icount", "shift=0,sleep=off", "-rtc", f"base={RTC_BASE},clock=vm"]
+        cmd += ["-icount", f"shift={s.icount_shift},sleep=off", "-rtc", f"base={RTC_BASE},clock=vm"]
     return cmd + list(s.extra_args)
 
 

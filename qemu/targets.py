@@ -41,6 +41,7 @@ class SystemMode:
     console: str                      # kernel console device
     memory: str                       # -m
     extra_args: tuple[str, ...]
+    icount_shift: int = 0             # -icount shift: one guest instruction = 2^shift ns of guest time
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,8 @@ def load(name: str, cpu: str | None = None) -> Target:
         system = SystemMode(machine=s["machine"], machine_options=tuple(s.get("machine_options", ())),
                             kernel_package=s["kernel_package"], dtb=s.get("dtb"),
                             console=s["console"], memory=s["memory"],
-                            extra_args=tuple(s.get("extra_args", ())))
+                            extra_args=tuple(s.get("extra_args", ())),
+                            icount_shift=int(s.get("icount_shift", 0)))
     return Target(name=name, description=t["description"], arch=arch, cpu=cpu_name,
                   clock_hz=float(t["clock_hz"]), clock_source=t["clock_source"], mfpu=c.get("mfpu"),
                   cpi=cpi, system=system, toolchain_file=REPO_ROOT / a["toolchain"],

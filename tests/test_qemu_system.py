@@ -1,8 +1,8 @@
 """QEMU system mode on the Raspberry Pi 3 (virt, Cortex-A53) and the Q7S (vexpress-a9,
 Cortex-A9): boot a Debian kernel with the project's initramfs, run the probe, power off.
 
-Checked: the program's exit status comes back; with -icount shift=0 the in-guest steady_clock
-advances one nanosecond per instruction (the timed loop is 2 x SPIN instructions) and gives
+Checked: the program's exit status comes back; with -icount shift=s the in-guest steady_clock
+advances 2^s nanoseconds per instruction (the timed loop is 2 x SPIN instructions) and gives
 identical readings in two boots; the guest reaches a TCP echo server on the host at 10.0.2.2,
 by address and by the name rvd-host from the initramfs's /etc/hosts.
 
@@ -84,10 +84,12 @@ def test_boot_run_power_off_with_deterministic_guest_time_and_host_tcp(booted, e
     assert len(first) == REPEAT
     # Bit-identical in-guest times from boot to boot...
     assert first == second
-    # ...and one instruction per guest nanosecond: the loop is exactly 2*SPIN instructions; the
-    # clock read itself and a timer interrupt may add a little. vexpress-a9's clock ticks in us.
-    for ns in first:
-        assert 2 * SPIN - 1000 <= ns <= 2 * SPIN * 1.05 + 1000, first
+    # ...and 2^shift guest nanoseconds per instruction: the loop is exactly 2*SPIN instructions;
+    # the clock read itself and a timer interrupt may add a little. vexpress-a9's clock ticks in us.
+    # The fastest repetition is the bare loop; others may also hold kernel work (a timer tick,
+    # deferred work after boot), the same in both boots.
+    per_insn_ns = 2 ** target.system.icount_shift
+    assert per_insn_ns * (2 * SPIN - 1000) <= min(first) <= per_insn_ns * (2 * SPIN * 1.05 + 1000), first
     assert seen.count(64) >= 4
 
 

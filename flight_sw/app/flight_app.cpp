@@ -79,11 +79,13 @@ const char* to_string(ExitReason r) {
 
 FlightApp::FlightApp(AppConfig config)
     : cfg_(std::move(config)),
-      markers_(cfg_.markers < 0 ? kSolveMarkersByDefault : cfg_.markers == 1) {
+      counter_(cfg_.markers < 0 ? kSolveMarkersByDefault : cfg_.markers == 1, cfg_.pmu_instructions) {
   if (!(cfg_.deadline_fraction > 0.0)) throw std::invalid_argument("deadline fraction must be > 0");
   if (cfg_.cpu_model.empty()) cfg_.cpu_model = build_info::kCpuModel;
   guidance_ = std::make_unique<guidance::Guidance>(cfg_.guidance);  // validates the parameters
-  guidance_->set_solve_observer(&markers_);
+  guidance_->set_solve_observer(&counter_);
+  if (cfg_.pmu_instructions && !counter_.pmu().usable())
+    std::fprintf(stderr, "[flight_sw] no PMU instruction counts: %s\n", counter_.pmu().error().c_str());
 }
 
 std::string FlightApp::key(const char* kind) const { return "rvd/" + cfg_.run_id + "/" + kind; }
@@ -173,9 +175,9 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
 
   const int phase_before = phase_index(guidance_->phase());
   const double budget_us = cfg_.deadline_fraction * cfg_.guidance.phase(guidance_->phase()).Ts_s * 1e6;
-  markers_.start_step(nav.step);
+  counter_.start_step(nav.step);
   const guidance::Command c = guidance_->step(in, budget_us);
-  const uint64_t insns = markers_.instructions();
+  const uint64_t insns = counter_.instructions();
 
   const bool overrun = c.solver.status == solver::Status::TimeLimit || c.step_time_us > budget_us;
   overruns_ += overrun ? 1 : 0;

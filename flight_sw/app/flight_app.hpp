@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "flight_sw/app/pmu_counter.hpp"
 #include "flight_sw/app/solve_marker.hpp"
 #include "flight_sw/guidance/guidance.hpp"
 #include "flight_sw/link/messages.hpp"
@@ -34,6 +35,11 @@ struct AppConfig {
   uint32_t lease_ms = 20000;       // generous: emulator stalls must not trip the host's lease check
   int telemetry_every = 20;        // steps between telemetry messages (and one at the end)
   int markers = -1;                // instruction markers: -1 auto (ARM builds), 0 off, 1 on
+  // Count the solves' user-mode instructions with the CPU's own PMU (perf_event_open). For QEMU
+  // system mode, where the plugin's markers do not reach: QEMU's emulated PMU counts retired
+  // instructions exactly under -icount (Cortex-A53 on virt; the A9 model has no PMU). Never under
+  // qemu-user: there the syscall would count the host's instructions.
+  bool pmu_instructions = false;
   std::string cpu_model;           // reported in hello (defaults to the build's -mcpu)
   bool verbose = false;
 };
@@ -49,17 +55,29 @@ struct PhaseLog {
 enum class ExitReason { Bye = 0, Signal = 1, LinkLost = 3, Idle = 4, NeverConnected = 5 };
 const char* to_string(ExitReason r);
 
-// Brackets each solver call with the QEMU instruction-count markers and sums the counts of a step.
-class MarkerObserver : public guidance::SolveObserver {
+// Brackets each solver call with the instruction counters and sums the counts of a step: the QEMU
+// plugin's markers (user mode) or the PMU (system mode, when enabled and available).
+class SolveCounter : public guidance::SolveObserver {
  public:
-  explicit MarkerObserver(bool enabled) : marker_(enabled) {}
+  SolveCounter(bool markers, bool pmu) : marker_(markers) {
+    if (pmu) pmu_.open();
+  }
   void start_step(uint32_t step) { step_ = step; instructions_ = 0; }
-  void before_solve() override { marker_.begin(step_); }
-  void after_solve() override { instructions_ += marker_.end(step_); }
+  void before_solve() override {
+    marker_.begin(step_);
+    pmu_.start();
+  }
+  void after_solve() override {
+    const uint64_t pmu = pmu_.stop();
+    const uint64_t plugin = marker_.end(step_);
+    instructions_ += plugin ? plugin : pmu;
+  }
   uint64_t instructions() const { return instructions_; }
+  const PmuCounter& pmu() const { return pmu_; }
 
  private:
   SolveMarker marker_;
+  PmuCounter pmu_;
   uint32_t step_ = 0;
   uint64_t instructions_ = 0;
 };
@@ -86,7 +104,7 @@ class FlightApp {
   AppConfig cfg_;
   std::unique_ptr<guidance::Guidance> guidance_;
   std::unique_ptr<link::ZenohSession> session_;
-  MarkerObserver markers_;
+  SolveCounter counter_;
   PhaseLog log_;
   std::optional<msg::Cmd> last_cmd_;
   msg::Nav pending_nav_{};

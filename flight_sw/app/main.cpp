@@ -47,6 +47,8 @@ Guidance
 Reporting
   --cpu-model NAME          CPU model reported in hello (default: the build's -mcpu)
   --markers on|off|auto     QEMU instruction-count markers around each solve (default auto: on for ARM)
+  --pmu-instructions        count each solve's user-mode instructions with the CPU's PMU
+                            (QEMU system mode; the plugin's markers count in user mode)
   --list-params             print the guidance parameters and exit
   -v, --verbose             log to stderr
 )";
@@ -169,7 +171,8 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
       else if (m == "off") cfg.markers = 0;
       else if (m == "auto") cfg.markers = -1;
       else throw std::invalid_argument("--markers: on, off or auto");
-    } else if (a == "--list-params") list_only = true;
+    } else if (a == "--pmu-instructions") cfg.pmu_instructions = true;
+    else if (a == "--list-params") list_only = true;
     else if (a == "-v" || a == "--verbose") cfg.verbose = true;
     else if (a == "-h" || a == "--help") { std::fputs(kUsage, stdout); std::exit(0); }
     else throw std::invalid_argument("unknown option '" + a + "'");
