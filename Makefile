@@ -41,8 +41,9 @@ native: | deps
 
 test: export OPENBLAS_NUM_THREADS = 1
 test: build
-	cd $(NATIVE) && ctest --output-on-failure -j $(JOBS)
-	$(PY) -m pytest -q tests
+	@cd $(NATIVE) && ctest --output-on-failure -j $(JOBS); c=$$?; \
+	cd $(CURDIR) && $(PY) -m pytest -q tests; p=$$?; \
+	if [ $$c -ne 0 ] || [ $$p -ne 0 ]; then echo "make test: FAILED (ctest exit $$c, pytest exit $$p)"; exit 1; fi
 
 asan: | deps
 	cmake -S . -B build/asan -DCMAKE_BUILD_TYPE=Debug -DRVD_SANITIZE=ON -DRVD_BUILD_TESTS=ON >/dev/null

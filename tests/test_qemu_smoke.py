@@ -158,3 +158,29 @@ def test_probe_under_qemu_user_without_plugin_and_tcp_to_host(q7s_build):
     assert any(l.startswith("llt step=3 n=20 insns=0") for l in lines)
     assert "echo ok bytes=64" in lines
     assert lines[-1] == "counting=0 status=0"
+
+
+# ------------------------------------------------------------------------------- PIL under QEMU
+def test_case1_closed_loop_under_qemu_user_equals_native(q7s_build, flight_exe, tmp_path):
+    """The whole loop (host_sim over Zenoh to the flight executable) with the Q7S build under
+    qemu-arm -cpu cortex-a9: Case 1 in the ideal setting docks with the native run's delta-v to
+    1e-6 m/s and the same number of steps. (Cortex-A9 has no fused multiply-add and its libm is
+    another build, so the last bits differ: the agreement is not bit for bit.)"""
+    from host_sim.pil import run_pil
+    from host_sim.record import load_run
+    from host_sim.server import ServerConfig
+
+    target, bdir, _, build_error = q7s_build
+    assert build_error is None, build_error
+    exe = build.find_executable(bdir, build.FLIGHT_EXE)
+    ideal = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
+    native, _ = run_pil("case1_vbar", **ideal, config=ServerConfig(delay_model="none"), run_dir=tmp_path / "native")
+    emulated, run_dir = run_pil("case1_vbar", **ideal, config=ServerConfig(delay_model="none", cmd_timeout_s=60),
+                                flight_command=lambda args: user.command(target, exe.path, args),
+                                run_dir=tmp_path / "q7s")
+    assert native.end == emulated.end == "docked"
+    assert emulated.steps == native.steps
+    assert abs(emulated.dv_total_mps - native.dv_total_mps) <= 1e-6
+    assert emulated.hello.arch == "armv7l" and emulated.hello.cpu_model == "cortex-a9"
+    _, steps = load_run(run_dir)
+    assert (steps["solver_status"].iloc[:-1] == 0).all()  # every solve converged under emulation too
