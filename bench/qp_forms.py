@@ -471,6 +471,63 @@ def to_stacked(qp: OcpQpData) -> StackedQp:
 
 
 @dataclasses.dataclass
+class CondensedQp:
+    """States eliminated through the dynamics: U = [u_0; ...; u_N],
+    minimize 1/2 U'HU + g'U + const  s.t.  G U <= h  (the usual dense MPC form)."""
+    H: np.ndarray
+    g: np.ndarray
+    G: np.ndarray
+    h: np.ndarray
+    const: float
+    u_idx: list
+
+    def unstack(self, U: np.ndarray, qp: "OcpQpData") -> tuple[np.ndarray, list]:
+        u = [U[s].copy() for s in self.u_idx]
+        x = [qp.x0]
+        for i in range(qp.N):
+            x.append(qp.A[i] @ x[-1] + qp.B[i] @ u[i] + qp.b[i])
+        return np.vstack(x), u
+
+
+def condense(qp: OcpQpData) -> CondensedQp:
+    N, nx = qp.N, qp.nx
+    u_idx, off = [], 0
+    for i in range(N + 1):
+        u_idx.append(slice(off, off + qp.nu[i]))
+        off += qp.nu[i]
+    nU = off
+    # x_i = X0[i] + Su[i] @ U (X0: free response incl. b; Su: input-to-state map)
+    X0 = [qp.x0]
+    Su = [np.zeros((nx, nU))]
+    for i in range(N):
+        X0.append(qp.A[i] @ X0[-1] + qp.b[i])
+        S = qp.A[i] @ Su[-1]
+        S[:, u_idx[i]] += qp.B[i]
+        Su.append(S)
+    H = np.zeros((nU, nU))
+    g = np.zeros(nU)
+    const = 0.0
+    rows_G, rows_h = [], []
+    for i in range(N + 1):
+        su = u_idx[i]
+        H[su, su] += qp.R[i]
+        g[su] += qp.r[i]
+        H += Su[i].T @ qp.Q[i] @ Su[i]
+        g += Su[i].T @ (qp.Q[i] @ X0[i] + qp.q[i])
+        const += 0.5 * X0[i] @ qp.Q[i] @ X0[i] + qp.q[i] @ X0[i]
+        if qp.nc[i]:
+            Gi = qp.C[i] @ Su[i]
+            Gi[:, su] += qp.D[i]
+            rows_G.append(Gi)
+            rows_h.append(qp.d[i] - qp.C[i] @ X0[i])
+    G = np.vstack(rows_G) if rows_G else np.zeros((0, nU))
+    h = np.concatenate(rows_h) if rows_h else np.zeros(0)
+    # Rows without any input (x0-only rows on stage 0) are constants: keep them out of the QP.
+    keep = np.any(G != 0.0, axis=1)
+    return CondensedQp(0.5 * (H + H.T), g, G[keep], h[keep], float(const), u_idx)
+
+
+@dataclasses.dataclass
 class PeerResult:
     status: str          # "solved", "infeasible", or the peer's own status text
     objective: float     # objective of the stage-wise QP (constant included), nan if not solved
@@ -479,9 +536,11 @@ class PeerResult:
     solve_time_us: float  # the peer's own reported solve time (setup excluded), microseconds
 
 
-def solve_proxsuite(qp: OcpQpData, *, eps_abs: float = 1e-10, dense: bool = False,
+def solve_proxsuite(qp: OcpQpData, *, eps_abs: float = 1e-10, eps_infeasible: float = 1e-8, dense: bool = False,
                     stacked: StackedQp | None = None, max_iter: int = 100000) -> PeerResult:
-    """Reference solve with ProxSuite (proxqp), eps_abs as given, eps_rel = 0."""
+    """Reference solve with ProxSuite (proxqp): eps_abs as given, eps_rel = 0. Its infeasibility
+    thresholds (eps_primal_inf, eps_dual_inf) default to 1e-4, which calls some feasible MPC QPs
+    (1 m of room, km-scale states) infeasible; 1e-8 does not."""
     import proxsuite
     s = stacked if stacked is not None else to_stacked(qp)
     nz, neq, nin = s.H.shape[0], s.Aeq.shape[0], s.Cin.shape[0]
@@ -494,8 +553,11 @@ def solve_proxsuite(qp: OcpQpData, *, eps_abs: float = 1e-10, dense: bool = Fals
         H, Aeq, Cin = s.H, s.Aeq, s.Cin
     solver.settings.eps_abs = eps_abs
     solver.settings.eps_rel = 0.0
+    solver.settings.eps_primal_inf = eps_infeasible
+    solver.settings.eps_dual_inf = eps_infeasible
     solver.settings.max_iter = max_iter
     solver.settings.verbose = False
+    solver.settings.compute_timings = True
     solver.init(H, s.g, Aeq, s.beq, Cin, lower, s.din)
     solver.solve()
     info = solver.results.info

@@ -1,16 +1,30 @@
 // Fast MPC solver for the stage-wise OCP QP of ocp_qp.hpp (Wang & Boyd 2010; seeds/000 §III).
 //
-// Two modes share one structure-exploiting Newton step (a Riccati recursion, O(N (nx+nu)^3)):
-//  - Mode::Converged: primal-dual interior point, Mehrotra predictor-corrector, to Settings::tol.
-//  - Mode::FixedBarrier: the seed's infeasible-start Newton method on the log-barrier problem with a
-//    fixed weight kappa (Settings::barrier), backtracking line search on the residual norm, few
-//    iterations, warm started from the shifted previous plan. Its iterates satisfy the inequalities
-//    strictly; the exact barrier minimiser is at most m*kappa worse than the optimum (m = rows).
-// Infeasibility is decided by an elastic phase-1 problem (minimise the total normalised violation,
-// with the same Riccati step) whose optimum is positive exactly when the QP has no solution.
+// Two modes share one structure-exploiting Newton step: a Riccati recursion over the stages,
+// O(N (nx+nu)^3) (kernels compiled with nx = 6 and nu in {3, 4, 7} fixed, generic otherwise).
+//  - Mode::Converged: primal-dual interior point (Mehrotra predictor-corrector, Gondzio
+//    centrality correctors when steps get short, iterative refinement in the late iterations) to
+//    Settings::tol on the relative primal and dual residuals and duality gap.
+//  - Mode::FixedBarrier: the seed's infeasible-start Newton method on the log-barrier problem
+//    f(z) - kappa sum log(d - Gz) with a fixed weight kappa (Settings::barrier), backtracking line
+//    search (residual norm while the dynamics are violated, then the barrier objective), few
+//    iterations, warm started from the shifted previous plan. Its iterates satisfy the
+//    inequalities strictly; the exact barrier minimiser is at most m*kappa worse than the optimum
+//    (m = rows). A cold start (or a warm plan outside the new inequalities) first follows the
+//    primal-dual central path down to complementarity ~kappa, then hands over to Newton.
+// Constant rows (no decision variable in them, e.g. stage-0 rows of x0 alone) are checked once:
+// violated means Infeasible at once, satisfied means ignored. Infeasibility otherwise is decided
+// by an elastic phase-1 problem (minimise the summed normalised violation, same Riccati step),
+// run when the iterations stall, break down or hit the cap with a sizeable primal residual; its
+// optimum is positive exactly when the QP has no solution. Info::iterations counts all Newton
+// systems solved, phase 1 included.
+//
+// Warm start (Settings::warm_start): the next solve starts from the last solution, shifted one
+// stage by shift_warm_start() (u_i <- u_{i+1}, x_i <- x_{i+1}, duals alike; the tail is kept, and
+// in Converged mode its last state re-propagated through the new QP's dynamics).
 //
 // Data flow as in OSQP: dims + settings -> constructor allocates every buffer -> solve(qp, x0) does
-// no heap allocation -> info(), x(), u().
+// no heap allocation (tests/cpp/test_solver_fast_mpc_alloc.cpp) -> info(), x(), u().
 #pragma once
 
 #include <chrono>
@@ -67,6 +81,7 @@ class FastMpcSolver {
   std::unique_ptr<OcpQp> qp1_;    // its data, filled in place from the QP
   Clock::time_point t_start_;
   bool has_warm_ = false;
+  bool shifted_ = false;  // the warm plan was shifted: its tail x_N needs the new QP's dynamics
 };
 
 }  // namespace rvd::solver

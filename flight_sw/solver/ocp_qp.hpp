@@ -53,7 +53,8 @@ struct OcpQp {
 
 enum class Status {
   Solved,        // converged to the requested tolerance (or, in FixedBarrier mode, the barrier problem)
-  MaxIter,       // iteration cap reached; the returned iterate satisfies the inequalities strictly
+  MaxIter,       // iteration cap reached. In FixedBarrier mode the iterate satisfies the inequalities
+                 // strictly once Newton has started (primal_residual then only measures the dynamics)
   Infeasible,    // the inequalities and dynamics admit no solution
   InvalidInput,  // sizes inconsistent, or NaN/Inf in the data or x0
   NumericalError, // factorization failed (e.g. a non-convex Q/R)
@@ -68,7 +69,7 @@ enum class Mode {
 
 struct Settings {
   Mode mode = Mode::Converged;
-  int max_iter = 100;
+  int max_iter = 100;          // iteration cap (FixedBarrier: fixed_barrier_settings() uses 15)
   double tol = 1e-8;          // relative tolerance on residuals and duality gap (Converged mode)
   double barrier = 1e-4;      // barrier weight kappa (FixedBarrier mode)
   bool warm_start = true;     // start from the shifted previous solution when it is usable

@@ -121,16 +121,19 @@ TEST_CASE("solve() allocates nothing, in every mode and outcome") {
     infeasible.d[N](0) = -1e3;  // the cone's first facet pushed far out of reach: no plan exists
     Vector x0 = docking_x0();
 
+    Vector x1 = x0;  // the next period's initial state: the plan's x1 (sized before counting)
     FastMpcSolver converged(qp.dims);
     FastMpcSolver barrier(qp.dims, fixed_barrier_settings(1e-3, 30));
     Status s1 = Status::InvalidInput, s2 = s1, s3 = s1, s4 = s1, s5 = s1, s6 = s1;
     const long n = allocations_during([&] {
       s1 = converged.solve(qp, x0);  // cold
+      x1 = converged.x()[1];
       converged.shift_warm_start();
-      s2 = converged.solve(qp, x0);  // warm
+      s2 = converged.solve(qp, x1);  // warm
       s3 = barrier.solve(qp, x0);    // cold: primal-dual start, then Newton
+      x1 = barrier.x()[1];
       barrier.shift_warm_start();
-      s4 = barrier.solve(qp, x0);  // warm
+      s4 = barrier.solve(qp, x1);  // warm
       s5 = converged.solve(infeasible, x0);
       s6 = converged.solve(bad, x0);
       converged.settings().time_limit_us = 1e-3;
@@ -145,4 +148,19 @@ TEST_CASE("solve() allocates nothing, in every mode and outcome") {
     CHECK(s5 == Status::Infeasible);
     CHECK(s6 == Status::InvalidInput);
   }
+  // The generic-size path (nx != 6).
+  Vector x0;
+  const OcpQp planar = planar_like(15, x0);
+  FastMpcSolver converged(planar.dims), barrier(planar.dims, fixed_barrier_settings(1e-4, 40));
+  Status a = Status::InvalidInput, b = a, c = a;
+  const long n = allocations_during([&] {
+    a = converged.solve(planar, x0);
+    b = barrier.solve(planar, x0);
+    barrier.shift_warm_start();
+    c = barrier.solve(planar, x0);
+  });
+  CHECK(n == 0);
+  CHECK(a == Status::Solved);
+  CHECK(b == Status::Solved);
+  CHECK((c == Status::Solved || c == Status::MaxIter));
 }

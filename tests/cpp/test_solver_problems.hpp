@@ -152,6 +152,40 @@ inline OcpQp random_like(int N, std::mt19937& rng, Vector& x0) {
   return qp;
 }
 
+// A planar double integrator (nx = 4: position, velocity in x and y; 2 inputs, |u| <= 1, |v| <= 2),
+// to run the solver's generic-size code path (the project's nx = 6 has its own fixed-size one).
+inline OcpQp planar_like(int N, Vector& x0) {
+  OcpQpDims dims = OcpQpDims::uniform(N, 4, 2, 8, 0, 4);
+  OcpQp qp(dims);
+  const double dt = 0.5;
+  Matrix A = Matrix::Identity(4, 4);
+  A(0, 2) = A(1, 3) = dt;
+  Matrix B(4, 2);
+  B << 0.5 * dt * dt, 0, 0, 0.5 * dt * dt, dt, 0, 0, dt;
+  for (int i = 0; i <= N; ++i) {
+    if (i < N) {
+      qp.A[i] = A;
+      qp.B[i] = B;
+      qp.R[i] = 0.1 * Matrix::Identity(2, 2);
+    }
+    qp.Q[i] = Matrix::Identity(4, 4);
+    qp.Q[i](2, 2) = qp.Q[i](3, 3) = 0.1;
+    int row = 0;
+    for (int k = 0; k < 2; ++k) {  // |v| <= 2
+      qp.C[i](row, 2 + k) = 1.0, qp.d[i](row++) = 2.0;
+      qp.C[i](row, 2 + k) = -1.0, qp.d[i](row++) = 2.0;
+    }
+    if (i < N)
+      for (int k = 0; k < 2; ++k) {  // |u| <= 1
+        qp.D[i](row, k) = 1.0, qp.d[i](row++) = 1.0;
+        qp.D[i](row, k) = -1.0, qp.d[i](row++) = 1.0;
+      }
+  }
+  x0.resize(4);
+  x0 << 10.0, -5.0, 1.5, 0.0;
+  return qp;
+}
+
 inline double objective(const OcpQp& qp, const std::vector<Vector>& x, const std::vector<Vector>& u) {
   double f = 0.0;
   for (int i = 0; i <= qp.dims.N; ++i) {

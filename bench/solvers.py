@@ -1,0 +1,267 @@
+"""Side-by-side solve times: flight_sw's Fast MPC solver vs ProxSuite, OSQP, DAQP, PIQP and Clarabel on
+the same MPC QPs, measured in one run. Prints figures; asserts nothing about speed.
+
+    python -m bench.solvers                      # synthetic QPs per guidance phase and horizon
+    python -m bench.solvers --qp-set run.npz     # a recorded QP set (format: bench/qp_forms.py)
+    python -m bench.solvers --quick              # fewer QPs and repeats (a smoke run)
+
+Accuracy is matched, not assumed: every solver's objective is compared with a reference (ProxSuite,
+eps_abs 1e-10, or looser where it cannot get there) and disagreements are counted in the table.
+
+Clocks (each solver's own, setup excluded; microseconds):
+  flight_sw          steady_clock around FastMpcSolver::solve() in C++ (Info::solve_time_us); the
+                     workspace is allocated once before, as in flight; cold start (no warm start)
+  proxsuite sparse/  results.info.solve_time (compute_timings=True): solve after init()
+  proxsuite dense
+  osqp               info.solve_time + info.polish_time (setup_time excluded)
+  daqp               info['solve_time'] (setup_time excluded); on the condensed QP (states
+                     eliminated; condensing is not timed)
+  piqp               result.info.solve_time (setup_time excluded), sparse interface
+  clarabel           solution.solve_time (the DefaultSolver constructor does the setup)
+Tolerances: flight_sw tol 1e-8 (relative residuals and duality gap); ProxSuite eps_abs 1e-8,
+eps_rel 0; PIQP eps_abs 1e-8 eps_rel 1e-9 (defaults); Clarabel tol_gap_abs/rel 1e-8, tol_feas 1e-8
+(defaults); DAQP primal/dual tolerances 1e-6 with automatic proximal regularisation (active set:
+exact up to rounding once the active set is right); OSQP eps_abs = eps_rel = 1e-6 with polishing
+(ADMM does not reach 1e-8 in practical iteration counts; the polished solution usually is exact).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections import defaultdict
+
+import numpy as np
+import scipy.sparse as sp
+
+from bench.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, condense, load_qp_set, solve_proxsuite,
+                            to_stacked)
+
+AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |f*|)
+
+
+# ------------------------------------------------------------------------------------------------
+# One function per solver: (qp, prepared forms) -> (objective, status, solve time in us, setup time
+# in us as the solver reports it, nan if it does not)
+
+def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
+    import flight_sw
+    solver = forms.setdefault(("flight_sw", mode), flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, mode=mode, tol=1e-8,
+                                                                      warm_start=False))
+    r = solver.solve(*qp.args())
+    return r.objective, r.status, r.solve_time_us, math.nan
+
+
+def run_proxsuite(qp: OcpQpData, forms: dict, dense: bool):
+    import proxsuite
+    s = forms["stacked"]
+    nz, neq, nin = s.H.shape[0], s.Aeq.shape[0], s.Cin.shape[0]
+    if dense:
+        solver = proxsuite.proxqp.dense.QP(nz, neq, nin)
+        mats = (forms["H_dense"], s.g, forms["Aeq_dense"], s.beq, forms["Cin_dense"])
+    else:
+        solver = proxsuite.proxqp.sparse.QP(nz, neq, nin)
+        mats = (s.H, s.g, s.Aeq, s.beq, s.Cin)
+    solver.settings.eps_abs = 1e-8
+    solver.settings.eps_rel = 0.0
+    solver.settings.verbose = False
+    solver.settings.compute_timings = True
+    solver.init(*mats, np.full(nin, -1e20), s.din)
+    solver.solve()
+    info = solver.results.info
+    ok = info.status == proxsuite.proxqp.PROXQP_SOLVED
+    x, u = s.unstack(np.asarray(solver.results.x), qp.x0)
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else str(info.status)), float(info.solve_time), \
+        float(info.setup_time)
+
+
+def run_osqp(qp: OcpQpData, forms: dict):
+    import osqp
+    s = forms["stacked"]
+    A = sp.vstack([s.Aeq, s.Cin]).tocsc()
+    lower = np.concatenate([s.beq, np.full(s.Cin.shape[0], -np.inf)])
+    upper = np.concatenate([s.beq, s.din])
+    solver = osqp.OSQP()
+    solver.setup(sp.triu(s.H).tocsc(), s.g, A, lower, upper, eps_abs=1e-6, eps_rel=1e-6, polishing=True,
+                 max_iter=200000, verbose=False)
+    res = solver.solve()
+    ok = res.info.status in ("solved", "solved inaccurate")
+    x, u = s.unstack(np.asarray(res.x), qp.x0) if res.x is not None else (None, None)
+    t_us = (res.info.solve_time + res.info.polish_time) * 1e6
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else res.info.status), t_us, \
+        res.info.setup_time * 1e6
+
+
+def run_daqp(qp: OcpQpData, forms: dict):
+    import daqp
+    c = forms["condensed"]
+    m = len(c.h)
+    U, _, exitflag, info = daqp.solve(c.H, c.g, c.G, c.h, np.full(m, -1e30), np.zeros(m, dtype=np.int32),
+                                      eps_prox=-1.0, primal_tol=1e-6, dual_tol=1e-6, iter_limit=100000)
+    ok = exitflag == 1
+    x, u = c.unstack(np.asarray(U), qp)
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else f"exitflag {exitflag}"), \
+        info["solve_time"] * 1e6, info["setup_time"] * 1e6
+
+
+def run_piqp(qp: OcpQpData, forms: dict):
+    import piqp
+    s = forms["stacked"]
+    solver = piqp.SparseSolver()
+    solver.settings.verbose = False
+    solver.settings.compute_timings = True
+    solver.setup(s.H, s.g, s.Aeq, s.beq, s.Cin, None, s.din)
+    status = solver.solve()
+    ok = status == piqp.PIQP_SOLVED
+    x, u = s.unstack(np.asarray(solver.result.x), qp.x0)
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else str(status)), \
+        solver.result.info.solve_time * 1e6, solver.result.info.setup_time * 1e6
+
+
+def run_clarabel(qp: OcpQpData, forms: dict):
+    import clarabel
+    s = forms["stacked"]
+    A = sp.vstack([s.Aeq, s.Cin]).tocsc()
+    b = np.concatenate([s.beq, s.din])
+    cones = [clarabel.ZeroConeT(s.Aeq.shape[0]), clarabel.NonnegativeConeT(s.Cin.shape[0])]
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    solver = clarabel.DefaultSolver(sp.triu(s.H).tocsc(), s.g, A, b, cones, settings)
+    sol = solver.solve()
+    ok = str(sol.status) == "Solved"
+    x, u = s.unstack(np.asarray(sol.x), qp.x0)
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else str(sol.status)), sol.solve_time * 1e6, \
+        math.nan
+
+
+SOLVERS = {
+    "flight_sw": run_flight_sw,
+    "proxsuite-sparse": lambda qp, f: run_proxsuite(qp, f, dense=False),
+    "proxsuite-dense": lambda qp, f: run_proxsuite(qp, f, dense=True),
+    "osqp": run_osqp,
+    "daqp": run_daqp,
+    "piqp": run_piqp,
+    "clarabel": run_clarabel,
+}
+
+
+def prepare(qp: OcpQpData) -> dict:
+    s = to_stacked(qp)
+    return {"stacked": s, "condensed": condense(qp), "H_dense": s.H.toarray(), "Aeq_dense": s.Aeq.toarray(),
+            "Cin_dense": s.Cin.toarray()}
+
+
+def reference(qp: OcpQpData, forms: dict):
+    for eps in (1e-10, 1e-9, 1e-8):
+        ref = solve_proxsuite(qp, eps_abs=eps, stacked=forms["stacked"], max_iter=20000)
+        if ref.status in ("solved", "infeasible"):
+            return ref
+    return ref
+
+
+# ------------------------------------------------------------------------------------------------
+
+def synthetic_set(per_group: int, seed: int) -> list[OcpQpData]:
+    """per_group feasible QPs per (phase, horizon) of the dissertation's timing study."""
+    rng = np.random.default_rng(seed)
+    qps = []
+    for phase, horizons in PHASE_HORIZONS.items():
+        for N in horizons:
+            made = 0
+            for _ in range(20 * per_group):
+                qp = PHASES[phase](N, rng)
+                if solve_proxsuite(qp, eps_abs=1e-8, max_iter=20000).status == "solved":
+                    qps.append(qp)
+                    made += 1
+                if made == per_group:
+                    break
+    return qps
+
+
+def pct(values, q):
+    return float(np.percentile(values, q)) if len(values) else math.nan
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--qp-set", help="QP-set .npz file (bench/qp_forms.py format); default: synthetic")
+    ap.add_argument("--per-group", type=int, default=10, help="synthetic QPs per phase and horizon")
+    ap.add_argument("--repeats", type=int, default=5, help="timed solves per QP and solver")
+    ap.add_argument("--solvers", default=",".join(SOLVERS), help="comma-separated subset of " + ",".join(SOLVERS))
+    ap.add_argument("--quick", action="store_true", help="2 QPs per group, 2 repeats")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.per_group, args.repeats = 2, 2
+    names = [n for n in args.solvers.split(",") if n]
+    unknown = set(names) - set(SOLVERS)
+    if unknown:
+        ap.error(f"unknown solvers: {sorted(unknown)}")
+
+    t0 = time.time()
+    qps = load_qp_set(args.qp_set) if args.qp_set else synthetic_set(args.per_group, args.seed)
+    print(f"{len(qps)} QPs from {args.qp_set or 'the synthetic MPC set'}; {args.repeats} timed solves per QP "
+          f"and solver; times in microseconds (each solver's own clock, see the module docstring)\n")
+
+    times = defaultdict(list)      # (phase, N, solver) -> solve times
+    setups = defaultdict(list)     # (phase, N, solver) -> setup times the solver reports
+    wrong = defaultdict(int)       # (phase, N, solver) -> objective disagreements / failures
+    worst = defaultdict(float)     # (phase, N, solver) -> worst relative objective difference
+    count = defaultdict(int)
+    for qp in qps:
+        key = (qp.phase or "set", qp.N)
+        forms = prepare(qp)
+        ref = reference(qp, forms)
+        if ref.status != "solved":
+            print(f"  skipped a {key} QP: reference says {ref.status}")
+            continue
+        count[key] += 1
+        for name in names:
+            for rep in range(args.repeats):
+                obj, status, t_us, setup_us = SOLVERS[name](qp, forms)
+                times[key + (name,)].append(t_us)
+                setups[key + (name,)].append(setup_us)
+                if rep == 0:
+                    err = abs(obj - ref.objective) / max(1.0, abs(ref.objective)) if status == "solved" else math.inf
+                    worst[key + (name,)] = max(worst[key + (name,)], err)
+                    if not err <= AGREE_REL:
+                        wrong[key + (name,)] += 1
+
+    groups = sorted(count, key=lambda k: (list(PHASE_HORIZONS).index(k[0]) if k[0] in PHASE_HORIZONS else 99, k[1]))
+    print(f"{'phase':<11}{'N':>4}  {'solver':<17}{'median':>10}{'p99':>10}{'ratio':>8}  {'worst rel. obj':>15}  "
+          f"{'bad':<6}{'setup (not in median)':>22}")
+    for key in groups:
+        ours = np.median(times[key + ("flight_sw",)]) if "flight_sw" in names else math.nan
+        for name in names:
+            t = times[key + (name,)]
+            med = np.median(t)
+            setup = np.median(setups[key + (name,)])
+            setup_txt = "-" if math.isnan(setup) else f"{setup:.1f}"
+            print(f"{key[0]:<11}{key[1]:>4}  {name:<17}{med:>10.1f}{pct(t, 99):>10.1f}{med / ours:>8.2f}  "
+                  f"{worst[key + (name,)]:>15.1e}  {str(wrong[key + (name,)]) + '/' + str(count[key]):<6}{setup_txt:>22}")
+        print()
+    print("ratio = solver median / flight_sw median (above 1: flight_sw is faster); bad = objective off the "
+          f"reference by more than {AGREE_REL:g} relative, or not solved; setup = the solver's own setup time "
+          "(median), where it reports one (flight_sw allocates its workspace once per phase, before any solve)\n")
+
+    # Growth with the horizon: linear scaling gives N_max / N_min; the dissertation's CVXGEN gave
+    # 864/119 = 7.3 for rendezvous N 45 vs 15.
+    print("time growth with the horizon: t(N_max) / t(N_min) per phase (linear scaling = N_max / N_min)")
+    phases = sorted({k[0] for k in groups}, key=lambda p: list(PHASE_HORIZONS).index(p) if p in PHASE_HORIZONS else 99)
+    for phase in phases:
+        Ns = sorted(k[1] for k in groups if k[0] == phase)
+        if len(Ns) < 2:
+            continue
+        lo, hi = Ns[0], Ns[-1]
+        cells = []
+        for name in names:
+            r = np.median(times[(phase, hi, name)]) / np.median(times[(phase, lo, name)])
+            cells.append(f"{name} {r:.2f}")
+        print(f"  {phase} N {hi}/{lo} (linear {hi / lo:.1f}): " + ", ".join(cells))
+    print(f"\nbenchmark wall time {time.time() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

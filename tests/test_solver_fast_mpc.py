@@ -1,0 +1,234 @@
+"""flight_sw's Fast MPC solver from Python, against ProxSuite and against constructions whose answer
+is known (reachability LPs, barrier theory). QPs are MPC-like: CW dynamics, nx = 6, 3 thrust inputs
+plus slack inputs, box and halfspace rows, horizons 5..45."""
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/ helpers from the repo root
+
+import flight_sw  # noqa: E402
+from bench.qp_forms import (  # noqa: E402
+    PHASES, OcpQpData, approach_qp, docking_qp, load_qp_set, random_mpc_qp, rendezvous_qp, save_qp_set,
+    solve_proxsuite, with_reach_row)
+
+GENERATORS = {"random": random_mpc_qp, **PHASES}
+
+
+def make(phase: str, N: int, seed: int) -> OcpQpData:
+    return GENERATORS[phase](N, np.random.default_rng(seed))
+
+
+def reference(qp: OcpQpData):
+    """ProxSuite at eps_abs 1e-10; on the few QPs where it cannot get there within its iteration
+    cap, at 1e-9, then 1e-8 (the objective comparison tolerance, 1e-6 relative, covers these)."""
+    for eps in (1e-10, 1e-9, 1e-8):
+        ref = solve_proxsuite(qp, eps_abs=eps, max_iter=20000)
+        if ref.status in ("solved", "infeasible"):
+            return ref
+    return ref
+
+
+def min_slack(qp: OcpQpData, x, u) -> float:
+    return min(float(np.min(qp.d[i] - qp.C[i] @ x[i] - qp.D[i] @ u[i])) for i in range(qp.N + 1) if qp.nc[i])
+
+
+@pytest.mark.parametrize("N", [5, 15, 30, 45])
+@pytest.mark.parametrize("phase", list(GENERATORS))
+def test_converged_matches_proxsuite(phase, N):
+    for seed in (N, N + 100):
+        qp = make(phase, N, seed)
+        ref = reference(qp)
+        res = flight_sw.solve_ocp_qp(*qp.args(), tol=1e-8)
+        assert res.status == ref.status, f"seed {seed}: ours {res.status}, ProxSuite {ref.status}"
+        if ref.status != "solved":
+            continue
+        assert abs(res.objective - ref.objective) <= 1e-6 * max(1.0, abs(ref.objective))
+        assert qp.violation(res.x, res.u) <= 1e-7
+        assert res.objective == pytest.approx(qp.objective(res.x, res.u), rel=1e-12, abs=1e-9)
+        assert res.primal_residual <= 1e-7
+        assert res.iterations <= 40
+
+
+@pytest.mark.parametrize("N", [5, 30])
+@pytest.mark.parametrize("phase", list(GENERATORS))
+def test_infeasibility_verdict(phase, N):
+    """A row demanding more than the reachable set (found by an LP) by 1 unit makes the QP infeasible
+    through the dynamics; 1 unit less keeps it feasible. ProxSuite's verdict (its default
+    thresholds) on the infeasible ones and its objective on the feasible ones must agree with ours."""
+    rng = np.random.default_rng(1000 + N)
+    base = make(phase, N, 7 * N + 1)
+    assert solve_proxsuite(base).status == "solved"
+    stage = int(rng.integers(1, N + 1))
+    direction = np.zeros(6)
+    direction[int(rng.integers(0, 3))] = rng.choice([-1.0, 1.0])
+
+    infeasible = with_reach_row(base, stage, direction, +1.0)
+    assert solve_proxsuite(infeasible, eps_infeasible=1e-4, max_iter=20000).status == "infeasible"
+    assert flight_sw.solve_ocp_qp(*infeasible.args()).status == "infeasible"
+    assert flight_sw.solve_ocp_qp(*infeasible.args(), mode="fixed_barrier", max_iter=60).status == "infeasible"
+
+    feasible = with_reach_row(base, stage, direction, -1.0)
+    ref = reference(feasible)
+    res = flight_sw.solve_ocp_qp(*feasible.args())
+    assert ref.status == res.status == "solved"
+    assert abs(res.objective - ref.objective) <= 1e-6 * max(1.0, abs(ref.objective))
+
+
+def test_violated_initial_state_row_is_infeasible_at_once():
+    qp = docking_qp(12, np.random.default_rng(0))
+    x0 = qp.x0.copy()
+    x0[3] = 0.5  # radial speed above the 0.1 m/s bound: a stage-0 row of x0 alone
+    res = flight_sw.solve_ocp_qp(*qp.args()[:-1], x0)
+    assert res.status == "infeasible" and res.iterations == 0
+
+
+@pytest.mark.parametrize("kappa", [1e-2, 1e-4])
+@pytest.mark.parametrize("phase", list(GENERATORS))
+def test_fixed_barrier_within_barrier_bound(phase, kappa):
+    """The exact minimiser of f - kappa sum log(d - Gz) on the dynamics has duality gap m kappa
+    (m rows), so 0 <= f - f* <= m kappa; its iterates satisfy every row strictly."""
+    qp = make(phase, 15, 42)
+    ref = reference(qp)
+    assert ref.status == "solved"
+    res = flight_sw.solve_ocp_qp(*qp.args(), mode="fixed_barrier", barrier=kappa, max_iter=100)
+    assert res.status == "solved"
+    assert min_slack(qp, res.x, res.u) > 0.0
+    assert res.primal_residual <= 1e-8  # dynamics; the inequalities hold strictly
+    m = sum(qp.nc)
+    slack = 1e-7 * max(1.0, abs(ref.objective))
+    assert -slack <= res.objective - ref.objective <= m * kappa + slack
+
+
+def closed_loop_iterations(qp: OcpQpData, mode: str, steps: int = 8, noise_m: float = 1e-3):
+    """Iterations of a warm-started solver and of cold solves over a closed loop: the plant takes
+    the plan's first thrust (plus a navigation error), the plan's tail is the next warm start."""
+    rng = np.random.default_rng(5)
+    solver = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, mode=mode, barrier=1e-3, max_iter=60)
+    x = qp.x0.copy()
+    warm = cold = 0
+    for step in range(steps):
+        args = qp.args()[:-1] + (x,)
+        r = solver.solve(*args)
+        c = flight_sw.solve_ocp_qp(*args, mode=mode, barrier=1e-3, max_iter=60)
+        assert r.status == c.status
+        if r.status == "infeasible":  # the noisy plant left the docking cone: the loop ends
+            break
+        assert r.status == "solved"
+        # Fixed barrier: both meet the barrier problem to tolerance; f may differ a little more
+        # along weakly curved (slack) directions.
+        assert r.objective == pytest.approx(c.objective, rel=1e-6 if mode == "converged" else 1e-5)
+        if step > 0:
+            warm += r.iterations
+            cold += c.iterations
+        x = qp.A[0] @ x + qp.B[0][:, :3] @ r.u[0][:3]
+        x[:3] += noise_m * rng.standard_normal(3)
+        solver.shift_warm_start()
+    return warm, cold
+
+
+@pytest.mark.parametrize("mode", ["converged", "fixed_barrier"])
+@pytest.mark.parametrize("phase", ["docking", "approach", "rendezvous"])
+def test_warm_start_needs_fewer_iterations(phase, mode):
+    """Summed over closed loops at horizons 5, 15 and 30 (two initial states each): single periods
+    can go either way, the total must drop."""
+    warm = cold = 0
+    for N in (5, 15, 30):
+        for seed in (N, N + 1):
+            w, c = closed_loop_iterations(make(phase, N, seed), mode)
+            warm += w
+            cold += c
+    assert warm < cold, (warm, cold)
+
+
+def test_result_layout_and_reusable_solver():
+    qp = rendezvous_qp(15, np.random.default_rng(2))
+    res = flight_sw.solve_ocp_qp(*qp.args())
+    assert res.status == "solved"
+    assert res.x.shape == (16, 6) and np.array_equal(res.x[0], qp.x0)
+    assert len(res.u) == 16 and res.u[15].shape == (4,) and res.u[3].shape == (3,)
+    assert res.pi.shape == (15, 6) and len(res.lam) == 16
+    assert res.solve_time_us > 0 and res.dual_residual >= 0
+    solver = flight_sw.OcpSolver(6, qp.nu, qp.nc)
+    assert solver.N == 15
+    again = solver.solve(*qp.args())
+    assert again.objective == pytest.approx(res.objective, rel=1e-12)
+    docking = docking_qp(5, np.random.default_rng(0))
+    assert flight_sw.solve_ocp_qp(*docking.args()).u[5].shape == (0,)
+
+
+def test_nan_gives_invalid_input():
+    qp = approach_qp(5, np.random.default_rng(1))
+    qp.Q[2] = qp.Q[2].copy()
+    qp.Q[2][1, 1] = np.nan
+    assert flight_sw.solve_ocp_qp(*qp.args()).status == "invalid_input"
+    x0 = qp.x0.copy()
+    x0[0] = np.inf
+    clean = approach_qp(5, np.random.default_rng(1))
+    assert flight_sw.solve_ocp_qp(*clean.args()[:-1], x0).status == "invalid_input"
+
+
+def test_shape_errors_raise_value_error():
+    qp = docking_qp(5, np.random.default_rng(0))
+    args = list(qp.args())
+    bad_B = list(qp.B)
+    bad_B[2] = np.zeros((6, 2))
+    with pytest.raises(ValueError, match=r"D\[2\]|B\[2\]|R\[2\]"):
+        flight_sw.solve_ocp_qp(*args[:1], bad_B, *args[2:])
+    with pytest.raises(ValueError, match="N\\+1"):
+        flight_sw.solve_ocp_qp(*args[:3], qp.Q[:-1], *args[4:])
+    with pytest.raises(ValueError, match="x0"):
+        flight_sw.solve_ocp_qp(*args[:-1], np.zeros(5))
+    bad_d = list(qp.d)
+    bad_d[1] = np.zeros(3)
+    with pytest.raises(ValueError, match=r"d\[1\]"):
+        flight_sw.solve_ocp_qp(*args[:9], bad_d, args[10])
+    with pytest.raises(ValueError, match="mode"):
+        flight_sw.solve_ocp_qp(*args, mode="fast")
+    with pytest.raises(ValueError):
+        flight_sw.solve_ocp_qp(*args[:1], [np.zeros((6, 3, 2))] * 5, *args[2:])
+    solver = flight_sw.OcpSolver(6, qp.nu, qp.nc)
+    other = docking_qp(6, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="dimensions"):
+        solver.solve(*other.args())
+
+
+def test_time_limit_reports_time_limit():
+    qp = random_mpc_qp(45, np.random.default_rng(3))
+    res = flight_sw.solve_ocp_qp(*qp.args(), time_limit_us=1.0)
+    assert res.status == "time_limit"
+    assert np.all(np.isfinite(res.x))
+
+
+def test_qp_set_file_roundtrip(tmp_path):
+    rng = np.random.default_rng(4)
+    qps = [rendezvous_qp(5, rng), docking_qp(4, rng), random_mpc_qp(6, rng)]
+    path = tmp_path / "set.npz"
+    save_qp_set(path, qps)
+    back = load_qp_set(path)
+    assert [q.phase for q in back] == ["rendezvous", "docking", "random"]
+    for a, b in zip(qps, back):
+        assert a.nu == b.nu and a.nc == b.nc and a.Ts == b.Ts
+        for name in ("A", "B", "b", "Q", "q", "R", "r", "C", "D", "d"):
+            for x, y in zip(getattr(a, name), getattr(b, name)):
+                assert np.array_equal(x, y)
+        assert flight_sw.solve_ocp_qp(*b.args()).objective == flight_sw.solve_ocp_qp(*a.args()).objective
+    np.savez(tmp_path / "bad.npz", n_qps=np.array(1), **{"qp0/N": np.array(2)})
+    with pytest.raises(ValueError, match="x0"):
+        load_qp_set(tmp_path / "bad.npz")
+
+
+def test_bench_runs_on_a_qp_set_file(tmp_path, capsys):
+    """The benchmark's table on a tiny QP-set file: every solver's row is there and agrees with
+    the reference (no speed is asserted)."""
+    from bench import solvers
+    rng = np.random.default_rng(8)
+    path = tmp_path / "two.npz"
+    save_qp_set(path, [docking_qp(5, rng), docking_qp(5, rng)])
+    assert solvers.main(["--qp-set", str(path), "--repeats", "1", "--solvers", "flight_sw,proxsuite-sparse,daqp"]) == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line.startswith("docking")]
+    assert [r[2] for r in rows] == ["flight_sw", "proxsuite-sparse", "daqp"]
+    assert all(r[7] == "0/2" for r in rows), out  # objectives agree with the reference
