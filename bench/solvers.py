@@ -4,9 +4,11 @@ the same MPC QPs, measured in one run. Prints figures; asserts nothing about spe
     python -m bench.solvers                      # synthetic QPs per guidance phase and horizon
     python -m bench.solvers --qp-set run.npz     # a recorded QP set (format: bench/qp_forms.py)
     python -m bench.solvers --quick              # fewer QPs and repeats (a smoke run)
+    python -m bench.solvers --record-cases real.npz  # record the closed-loop QPs of Cases 1-3, bench them
 
 Accuracy is matched, not assumed: every solver's objective is compared with a reference (ProxSuite,
-eps_abs 1e-10, or looser where it cannot get there) and disagreements are counted in the table.
+eps_abs 1e-10, or looser where it cannot get there; Clarabel at 1e-10 where ProxSuite fails) and
+disagreements are counted in the table. QPs the reference finds infeasible are listed, not timed.
 
 Clocks (each solver's own, setup excluded; microseconds):
   flight_sw          steady_clock around FastMpcSolver::solve() in C++ (Info::solve_time_us); the
@@ -35,8 +37,8 @@ from collections import defaultdict
 import numpy as np
 import scipy.sparse as sp
 
-from bench.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, condense, load_qp_set, solve_proxsuite,
-                            to_stacked)
+from bench.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, condense, load_qp_set,
+                            save_qp_set, solve_proxsuite, to_stacked)
 
 AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |f*|)
 
@@ -153,11 +155,28 @@ def prepare(qp: OcpQpData) -> dict:
 
 
 def reference(qp: OcpQpData, forms: dict):
+    """The objective the others are checked against: ProxSuite at eps_abs 1e-10 (1e-9, 1e-8 where it
+    cannot get there); where ProxSuite fails or calls the QP infeasible, Clarabel at 1e-10 (on real
+    closed-loop QPs ProxSuite calls some feasible QPs infeasible). Returns (result, who)."""
     for eps in (1e-10, 1e-9, 1e-8):
         ref = solve_proxsuite(qp, eps_abs=eps, stacked=forms["stacked"], max_iter=20000)
-        if ref.status in ("solved", "infeasible"):
-            return ref
-    return ref
+        if ref.status == "solved":
+            return ref, f"proxsuite {eps:g}"
+    import clarabel
+    s = forms["stacked"]
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = 1e-10
+    sol = clarabel.DefaultSolver(sp.triu(s.H).tocsc(), s.g, sp.vstack([s.Aeq, s.Cin]).tocsc(),
+                                 np.concatenate([s.beq, s.din]),
+                                 [clarabel.ZeroConeT(s.Aeq.shape[0]), clarabel.NonnegativeConeT(s.Cin.shape[0])],
+                                 settings).solve()
+    status = str(sol.status)
+    if status in ("Solved", "AlmostSolved"):
+        x, u = s.unstack(np.asarray(sol.x), qp.x0)
+        return PeerResult("solved", qp.objective(x, u), x, u, math.nan), "clarabel 1e-10"
+    return PeerResult("infeasible" if "Infeasible" in status else status, math.nan, None, None, math.nan), \
+        "proxsuite+clarabel"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -179,6 +198,24 @@ def synthetic_set(per_group: int, seed: int) -> list[OcpQpData]:
     return qps
 
 
+def record_cases(path: str, cases=(1, 2, 3)) -> list[OcpQpData]:
+    """Every QP the guidance solved in closed loops of the dissertation's cases (CW plant, default
+    GuidanceParams), written as a QP-set file: the real closed-loop set."""
+    import flight_sw
+    params = flight_sw.GuidanceParams()
+    qps = []
+    for case in cases:
+        c = flight_sw.dissertation_case(case)
+        run = flight_sw.run_closed_loop(params, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"], record_qps=True)
+        for rec in run.qps:
+            d = rec["qp"]
+            phase = str(rec["phase"]).split(".")[-1].lower()
+            qps.append(OcpQpData(d["A"], d["B"], d["b"], d["Q"], d["q"], d["R"], d["r"], d["C"], d["D"], d["d"],
+                                 np.asarray(d["x0"], float), phase=phase))
+    save_qp_set(path, qps)
+    return qps
+
+
 def pct(values, q):
     return float(np.percentile(values, q)) if len(values) else math.nan
 
@@ -190,6 +227,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=5, help="timed solves per QP and solver")
     ap.add_argument("--solvers", default=",".join(SOLVERS), help="comma-separated subset of " + ",".join(SOLVERS))
     ap.add_argument("--quick", action="store_true", help="2 QPs per group, 2 repeats")
+    ap.add_argument("--record-cases", metavar="FILE",
+                    help="record every QP of closed loops of the dissertation's Cases 1-3 into FILE, then bench them")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     if args.quick:
@@ -200,7 +239,11 @@ def main(argv=None) -> int:
         ap.error(f"unknown solvers: {sorted(unknown)}")
 
     t0 = time.time()
-    qps = load_qp_set(args.qp_set) if args.qp_set else synthetic_set(args.per_group, args.seed)
+    if args.record_cases:
+        qps = record_cases(args.record_cases)
+        args.qp_set = args.record_cases
+    else:
+        qps = load_qp_set(args.qp_set) if args.qp_set else synthetic_set(args.per_group, args.seed)
     print(f"{len(qps)} QPs from {args.qp_set or 'the synthetic MPC set'}; {args.repeats} timed solves per QP "
           f"and solver; times in microseconds (each solver's own clock, see the module docstring)\n")
 
@@ -209,12 +252,15 @@ def main(argv=None) -> int:
     wrong = defaultdict(int)       # (phase, N, solver) -> objective disagreements / failures
     worst = defaultdict(float)     # (phase, N, solver) -> worst relative objective difference
     count = defaultdict(int)
+    used = defaultdict(int)        # which reference solved how many QPs
     for qp in qps:
         key = (qp.phase or "set", qp.N)
         forms = prepare(qp)
-        ref = reference(qp, forms)
+        ref, who = reference(qp, forms)
+        used[who] += 1
         if ref.status != "solved":
-            print(f"  skipped a {key} QP: reference says {ref.status}")
+            ours = run_flight_sw(qp, forms)[1] if "flight_sw" in names else "-"
+            print(f"  skipped a {key} QP: the reference ({who}) says {ref.status}; flight_sw says {ours}")
             continue
         count[key] += 1
         for name in names:
@@ -228,6 +274,7 @@ def main(argv=None) -> int:
                     if not err <= AGREE_REL:
                         wrong[key + (name,)] += 1
 
+    print("reference objectives: " + ", ".join(f"{who} {n}" for who, n in used.items()) + "\n")
     groups = sorted(count, key=lambda k: (list(PHASE_HORIZONS).index(k[0]) if k[0] in PHASE_HORIZONS else 99, k[1]))
     print(f"{'phase':<11}{'N':>4}  {'solver':<17}{'median':>10}{'p99':>10}{'ratio':>8}  {'worst rel. obj':>15}  "
           f"{'bad':<6}{'setup (not in median)':>22}")
