@@ -95,7 +95,8 @@ def run_pil(
     port = free_tcp_port(host_address)
     cfg.endpoint = f"tcp/{host_address}:{port}"
     cfg.run_id = cfg.run_id if cfg.run_id != "run" else uuid.uuid4().hex[:12]
-    args = ["--connect", flight_endpoint or cfg.endpoint, "--run", cfg.run_id, *flight_args]
+    # --verbose: the flight software notes its events (connects, rejected input, exit) in flight_sw.log.
+    args = ["--connect", flight_endpoint or cfg.endpoint, "--run", cfg.run_id, "--verbose", *flight_args]
     if flight_command is not None:
         cmd = list(flight_command(args))
     else:

@@ -70,8 +70,12 @@ class ZenohLink:
         if self.lease_ms:  # keep-alives go out every lease/4 when the link is idle
             conf.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
         self.session = z.open(conf)
+        # indirect=False: run the (short) callback on Zenoh's receive thread. The default gives each
+        # subscriber its own Python thread, which reorders messages across keys (a bye overtaking
+        # the telemetry sent before it); the flight side's order is part of the protocol.
         for kind in ("hello", "cmd", "telemetry", "bye"):
-            self._subs.append(self.session.declare_subscriber(msg.key(kind, self.run_id), self._on_sample))
+            self._subs.append(self.session.declare_subscriber(
+                msg.key(kind, self.run_id), z.handlers.Callback(self._on_sample, indirect=False)))
 
     def _on_sample(self, sample) -> None:
         data = sample.payload.to_bytes()
@@ -213,14 +217,22 @@ class PilServer:
             return message
         return None
 
+    # After the flight process has exited, what it sent last (its bye) may still be in Zenoh's
+    # receive path: wait this long with an empty inbox before calling the flight software lost.
+    EXIT_DRAIN_S = 0.5
+
     def _wait_for_cmd(self, k: int, deadline: float):
+        exited_at = None
         while True:
-            left = deadline - time.monotonic()
+            now = time.monotonic()
+            left = deadline - now
             if left <= 0:
                 return None
-            m = self._take(self.link.get(min(left, 0.2)))
+            m = self._take(self.link.get(min(left, 0.1 if exited_at is not None else 0.2)))
             if m is None and self.inbox_empty() and self.flight_exited() is not None:
-                return None
+                exited_at = exited_at or time.monotonic()
+                if time.monotonic() - exited_at >= self.EXIT_DRAIN_S:
+                    return None
             if isinstance(m, msg.Bye):
                 self.event("flight_bye", f"reason {m.reason}: {m.text}")
                 return m
@@ -294,7 +306,8 @@ class PilServer:
         cfg = self.cfg
         for attempt in range(cfg.nav_retries + 1):
             if self.flight_exited() is not None and self.inbox_empty():
-                return None, attempt
+                # No point resending to a dead process; collect what it sent last (its bye), if any.
+                return self._wait_for_cmd(k, time.monotonic() + self.EXIT_DRAIN_S + 0.2), attempt
             if attempt > 0:
                 self.summary.nav_resends += 1
                 self.event("nav_resend", f"no cmd {k} within {cfg.cmd_timeout_s:g} s, attempt {attempt}", step=k)

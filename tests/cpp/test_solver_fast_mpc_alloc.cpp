@@ -22,66 +22,85 @@ std::atomic<long> g_allocations{0};
 }
 
 #if RVD_COUNT_ALLOCATIONS
+// Dynamic builds replace the C allocator and forward to glibc's __libc_* entry points. Static
+// glibc defines malloc and __libc_malloc in one object, so static builds (RVD_STATIC_LINK, the
+// cross builds run under QEMU) link with -Wl,--wrap=malloc,... instead: every reference to malloc
+// in the link, libstdc++'s included, reaches __wrap_malloc, which forwards to __real_malloc.
+#if RVD_STATIC_LINK
+#define RVD_C_ALLOC(name) __wrap_##name
+#define RVD_REAL(name) __real_##name
+#else
+#define RVD_C_ALLOC(name) name
+#define RVD_REAL(name) __libc_##name
+#endif
 extern "C" {
+#if RVD_STATIC_LINK
+void* __real_malloc(size_t);
+void* __real_calloc(size_t, size_t);
+void* __real_realloc(void*, size_t);
+void* __real_memalign(size_t, size_t);
+void __real_free(void*);
+#else
 void* __libc_malloc(size_t);
 void* __libc_calloc(size_t, size_t);
 void* __libc_realloc(void*, size_t);
 void* __libc_memalign(size_t, size_t);
 void __libc_free(void*);
+#endif
 
-void* malloc(size_t n) {
+void* RVD_C_ALLOC(malloc)(size_t n) {
   ++g_allocations;
-  return __libc_malloc(n);
+  return RVD_REAL(malloc)(n);
 }
-void* calloc(size_t n, size_t m) {
+void* RVD_C_ALLOC(calloc)(size_t n, size_t m) {
   ++g_allocations;
-  return __libc_calloc(n, m);
+  return RVD_REAL(calloc)(n, m);
 }
-void* realloc(void* p, size_t n) {
+void* RVD_C_ALLOC(realloc)(void* p, size_t n) {
   ++g_allocations;
-  return __libc_realloc(p, n);
+  return RVD_REAL(realloc)(p, n);
 }
-void free(void* p) { __libc_free(p); }
-int posix_memalign(void** out, size_t align, size_t n) {
+void RVD_C_ALLOC(free)(void* p) { RVD_REAL(free)(p); }
+int RVD_C_ALLOC(posix_memalign)(void** out, size_t align, size_t n) {
   ++g_allocations;
-  *out = __libc_memalign(align, n);
+  *out = RVD_REAL(memalign)(align, n);
   return *out ? 0 : 12;  // ENOMEM
 }
-void* aligned_alloc(size_t align, size_t n) {
+void* RVD_C_ALLOC(aligned_alloc)(size_t align, size_t n) {
   ++g_allocations;
-  return __libc_memalign(align, n);
+  return RVD_REAL(memalign)(align, n);
 }
-void* memalign(size_t align, size_t n) {
+void* RVD_C_ALLOC(memalign)(size_t align, size_t n) {
   ++g_allocations;
-  return __libc_memalign(align, n);
+  return RVD_REAL(memalign)(align, n);
 }
 }
 
 void* operator new(size_t n) {
   ++g_allocations;
-  if (void* p = __libc_malloc(n ? n : 1)) return p;
+  if (void* p = RVD_REAL(malloc)(n ? n : 1)) return p;
   throw std::bad_alloc();
 }
 void* operator new[](size_t n) { return operator new(n); }
 void* operator new(size_t n, const std::nothrow_t&) noexcept {
   ++g_allocations;
-  return __libc_malloc(n ? n : 1);
+  return RVD_REAL(malloc)(n ? n : 1);
 }
 void* operator new[](size_t n, const std::nothrow_t&) noexcept { return operator new(n, std::nothrow); }
 void* operator new(size_t n, std::align_val_t a) {
   ++g_allocations;
-  if (void* p = __libc_memalign(static_cast<size_t>(a), n ? n : 1)) return p;
+  if (void* p = RVD_REAL(memalign)(static_cast<size_t>(a), n ? n : 1)) return p;
   throw std::bad_alloc();
 }
 void* operator new[](size_t n, std::align_val_t a) { return operator new(n, a); }
-void operator delete(void* p) noexcept { __libc_free(p); }
-void operator delete[](void* p) noexcept { __libc_free(p); }
-void operator delete(void* p, size_t) noexcept { __libc_free(p); }
-void operator delete[](void* p, size_t) noexcept { __libc_free(p); }
-void operator delete(void* p, std::align_val_t) noexcept { __libc_free(p); }
-void operator delete[](void* p, std::align_val_t) noexcept { __libc_free(p); }
-void operator delete(void* p, size_t, std::align_val_t) noexcept { __libc_free(p); }
-void operator delete[](void* p, size_t, std::align_val_t) noexcept { __libc_free(p); }
+void operator delete(void* p) noexcept { RVD_REAL(free)(p); }
+void operator delete[](void* p) noexcept { RVD_REAL(free)(p); }
+void operator delete(void* p, size_t) noexcept { RVD_REAL(free)(p); }
+void operator delete[](void* p, size_t) noexcept { RVD_REAL(free)(p); }
+void operator delete(void* p, std::align_val_t) noexcept { RVD_REAL(free)(p); }
+void operator delete[](void* p, std::align_val_t) noexcept { RVD_REAL(free)(p); }
+void operator delete(void* p, size_t, std::align_val_t) noexcept { RVD_REAL(free)(p); }
+void operator delete[](void* p, size_t, std::align_val_t) noexcept { RVD_REAL(free)(p); }
 #endif
 
 using namespace rvd::solver;
@@ -101,7 +120,7 @@ TEST_CASE("the counters see allocations") {
   if (!RVD_COUNT_ALLOCATIONS) return;
   const long n = allocations_during([] {
     Vector v = Vector::Ones(100);
-    auto* p = std::malloc(16);
+    void* volatile p = std::malloc(16);  // volatile: the compiler may not elide the pair
     std::free(p);
     CHECK(v.sum() == 100.0);
   });
