@@ -191,7 +191,7 @@ class Campaign:
                 initrd = tdir / "initrd.cpio"
                 if not initrd.exists() or initrd.stat().st_mtime < exe.path.stat().st_mtime:
                     system.program_initrd(img, exe.path, initrd)
-                fp = hashlib.sha256(f"{fp_base}system{rep}{img.kernel_version}".encode()).hexdigest()[:16]
+                fp = hashlib.sha256(f"{fp_base}system{rep}{img.kernel_version}{SYSTEM_CYCLE_GRID_US}".encode()).hexdigest()[:16]
 
                 def launch(args, img=img, initrd=initrd):
                     return system.command(t, img, initrd, args)
@@ -210,9 +210,16 @@ class Campaign:
             return launch(args)
 
         # The PMU counts the solves' user-mode instructions in the guest (where the plugin cannot);
-        # a long host lease keeps Zenoh keep-alives (network interrupts in the guest) rare.
-        return self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True, flight_command=flight_command, meta=meta,
-                        flight_args=["--pmu-instructions"], config=ServerConfig(zenoh_lease_ms=60000))
+        # a long host lease keeps Zenoh keep-alives (network interrupts in the guest) rare; each step
+        # starts on a 20 ms grid of the guest clock (a multiple of the kernel tick at HZ 100 and
+        # 250), so the tick interrupts fall at the same points of each solve in every run.
+        return self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True, flight_command=flight_command,
+                        meta={**meta, "cycle_grid_us": SYSTEM_CYCLE_GRID_US},
+                        flight_args=["--pmu-instructions", "--cycle-grid-us", str(SYSTEM_CYCLE_GRID_US)],
+                        config=ServerConfig(zenoh_lease_ms=60000))
+
+
+SYSTEM_CYCLE_GRID_US = 20000  # system mode: steps start on this grid of the guest's monotonic clock
 
 
 def parse_args(argv=None) -> tuple[Spec, Path, bool]:

@@ -317,7 +317,10 @@ def write(out: Path) -> Path:
     parts.append("<h2>Checks</h2><p>Case 1 in the ideal setting (CW truth, no noise, impulsive burns, no "
                  "delay). <i>user_instructions</i>: the plugin's counts, two runs under qemu-user. "
                  "<i>system_solve_time_us</i>: the guest's own clock in QEMU system mode with -icount "
-                 "(2<sup>shift</sup> ns per instruction, interrupt handling included); "
+                 "(2<sup>shift</sup> ns per instruction, interrupt handling included; each step starts on "
+                 "a 20 ms grid of the guest clock so that the kernel's tick falls at the same points of "
+                 "each solve; what still differs between runs is asynchronous host I/O through QEMU's "
+                 "user network and the phase of the guest counter, see <i>max_difference</i>); "
                  "<i>system_instructions</i>: the guest PMU's user-mode instruction count (QEMU's Cortex-A53 "
                  "on virt; the A9 model has no PMU). <i>dv_minus_native</i>: total delta-v under QEMU minus "
                  "the native build's (floating-point differences between instruction sets and libm).</p>")

@@ -40,6 +40,11 @@ struct AppConfig {
   // instructions exactly under -icount (Cortex-A53 on virt; the A9 model has no PMU). Never under
   // qemu-user: there the syscall would count the host's instructions.
   bool pmu_instructions = false;
+  // Start each guidance step on the next multiple of this many microseconds of CLOCK_MONOTONIC,
+  // as a rate-group tick would (0: at once). Under QEMU system mode with -icount this makes the
+  // guest's timer interrupts fall at the same points of every solve, run after run: the nav's
+  // arrival time in the guest depends on the host, the grid and Linux's tick grid do not.
+  double cycle_grid_us = 0.0;
   std::string cpu_model;           // reported in hello (defaults to the build's -mcpu)
   bool verbose = false;
 };

@@ -49,6 +49,8 @@ Reporting
   --markers on|off|auto     QEMU instruction-count markers around each solve (default auto: on for ARM)
   --pmu-instructions        count each solve's user-mode instructions with the CPU's PMU
                             (QEMU system mode; the plugin's markers count in user mode)
+  --cycle-grid-us G         start each guidance step on the next multiple of G us of the monotonic
+                            clock, like a rate-group tick (default 0: at once)
   --list-params             print the guidance parameters and exit
   -v, --verbose             log to stderr
 )";
@@ -172,6 +174,11 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
       else if (m == "auto") cfg.markers = -1;
       else throw std::invalid_argument("--markers: on, off or auto");
     } else if (a == "--pmu-instructions") cfg.pmu_instructions = true;
+    else if (a == "--cycle-grid-us") {
+      cfg.cycle_grid_us = parse_double(value(), a);
+      if (!(cfg.cycle_grid_us >= 0.0 && cfg.cycle_grid_us <= 1e7))
+        throw std::invalid_argument("--cycle-grid-us: 0 to 10000000");
+    }
     else if (a == "--list-params") list_only = true;
     else if (a == "-v" || a == "--verbose") cfg.verbose = true;
     else if (a == "-h" || a == "--help") { std::fputs(kUsage, stdout); std::exit(0); }
