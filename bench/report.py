@@ -112,6 +112,10 @@ def checks(metas: list[dict], df: pd.DataFrame) -> dict:
                 continue
             a = df[df["run"] == dirs[0]][col].to_numpy()
             b = df[df["run"] == dirs[1]][col].to_numpy()
+            if not (np.nan_to_num(a).any() or np.nan_to_num(b).any()):
+                # nothing counted (e.g. no PMU in the CPU model): say so rather than "identical"
+                res[f"{mode}_{col}"] = "not measured"
+                continue
             same = len(a) == len(b) and bool(np.array_equal(np.nan_to_num(a), np.nan_to_num(b)))
             res[f"{mode}_{col}_identical"] = same
             res[f"{mode}_{col}_compared"] = int(min(len(a), len(b)))
