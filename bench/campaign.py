@@ -184,6 +184,8 @@ class Campaign:
                                             "runs": [str(native_dir.relative_to(self.out)),
                                                      *[f"runs/{t.build_name}/case1-ideal-{i}" for i in (1, 2)]]}
         # 4. system mode, twice
+        if spec.system_mode and t.system_note:
+            self.say(f"{t.name}: no system mode: {t.system_note}")
         if spec.system_mode and t.system is not None:
             img = system.image(t)
             for rep in (1, 2):

@@ -63,6 +63,7 @@ class Target:
     debian_arch: str | None
     objdump: str | None
     cpu_overridden: bool = False
+    system_note: str = ""      # why there is no system mode, when the registry has one
 
     @property
     def emulated(self) -> bool:
@@ -132,8 +133,11 @@ def load(name: str, cpu: str | None = None) -> Target:
     a = reg["arch"][arch]
     cpi = CpiModel(nominal=c["cpi"]["nominal"], low=c["cpi"]["low"], high=c["cpi"]["high"],
                    calibrated=c["cpi"]["calibrated"], basis=" ".join(c["cpi"]["basis"].split()))
-    system = None
-    if "system" in t:
+    system, system_note = None, ""
+    if "system" in t and cpu_name not in t["system"].get("cpus", [cpu_name]):
+        system_note = (f"QEMU's {t['system']['machine']} machine takes only {', '.join(t['system']['cpus'])}, "
+                       f"not {cpu_name}: user mode only")
+    elif "system" in t:
         s = t["system"]
         system = SystemMode(machine=s["machine"], machine_options=tuple(s.get("machine_options", ())),
                             kernel_package=s["kernel_package"], dtb=s.get("dtb"),
@@ -145,4 +149,4 @@ def load(name: str, cpu: str | None = None) -> Target:
                   cpi=cpi, system=system, toolchain_file=REPO_ROOT / a["toolchain"],
                   compiler=a["compiler"], qemu_user=a["qemu_user"], qemu_system=a["qemu_system"],
                   qemu_cpu=c["qemu_cpu"], debian_arch=a["debian_arch"], objdump=a["objdump"],
-                  cpu_overridden=cpu_name != t["cpu"])
+                  cpu_overridden=cpu_name != t["cpu"], system_note=system_note)

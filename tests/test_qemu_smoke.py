@@ -56,6 +56,9 @@ def test_cpu_model_can_be_swapped_by_argument_or_environment(monkeypatch):
     a8 = targets.load("q7s", cpu="cortex-a8")
     assert (a8.qemu_cpu, a8.clock_hz, a8.build_name) == ("cortex-a8", 766e6, "q7s-cortex-a8")
     assert a8.cpi == targets.load("beaglebone").cpi
+    # vexpress-a9's A9MPCore peripherals take no other core: the override leaves user mode only, and says so
+    assert targets.load("q7s").system is not None and a8.system is None
+    assert "vexpress-a9" in a8.system_note and "cortex-a8" in a8.system_note
     monkeypatch.setenv(targets.CPU_ENV, "cortex-a72")
     assert targets.load("rpi3").qemu_cpu == "cortex-a72"
     with pytest.raises(ValueError, match="is aarch64, target 'q7s' is armhf"):
