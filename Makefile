@@ -40,10 +40,11 @@ native: | deps
 	cmake --build $(NATIVE) -j $(JOBS)
 
 test: export OPENBLAS_NUM_THREADS = 1
+test: export RVD_QEMU_FETCH = 1
 test: build
-	@# The counting plugin needs qemu-plugin.h from Debian's qemu source package (a small download):
-	@# built here so that its determinism tests run in CI; without it they are skipped, and say so.
-	@$(PY) -m qemu.plugin || echo "make test: counting plugin not built (see above); its tests will be skipped"
+	@# The QEMU tests need the counting plugin (qemu-plugin.h from Debian's qemu source package) and
+	@# the system-mode images (Debian ARM kernels, busybox): fetched once into build/, ~15 s.
+	$(PY) -m qemu prepare q7s rpi3
 	@cd $(NATIVE) && ctest --output-on-failure -j $(JOBS); c=$$?; \
 	cd $(CURDIR) && $(PY) -m pytest -q tests; p=$$?; \
 	if [ $$c -ne 0 ] || [ $$p -ne 0 ]; then echo "make test: FAILED (ctest exit $$c, pytest exit $$p)"; exit 1; fi

@@ -17,20 +17,6 @@ set(CMAKE_CXX_COMPILER aarch64-linux-gnu-g++)
 set(CMAKE_C_FLAGS_INIT "-mcpu=${RVD_CPU}")
 set(CMAKE_CXX_FLAGS_INIT "-mcpu=${RVD_CPU}")
 
-set(CMAKE_FIND_ROOT_PATH /usr/aarch64-linux-gnu)
-set(CMAKE_FIND_ROOT_PATH_MODE_PROGRAM NEVER)
-set(CMAKE_FIND_ROOT_PATH_MODE_LIBRARY ONLY)
-set(CMAKE_FIND_ROOT_PATH_MODE_INCLUDE ONLY)
-set(CMAKE_FIND_ROOT_PATH_MODE_PACKAGE ONLY)
-
-set(RVD_STATIC ON CACHE BOOL "Link executables statically (cross targets)")
-
-set(_qemu_cpu "${RVD_QEMU_CPU}")
-if(NOT _qemu_cpu)
-  set(_qemu_cpu "${RVD_CPU}")
-endif()
-# The dynamic qemu-aarch64 (package qemu-user), not the -static one: TCG plugins load only in it.
-find_program(RVD_QEMU_AARCH64 qemu-aarch64 NO_CMAKE_FIND_ROOT_PATH)
-if(RVD_QEMU_AARCH64)
-  set(CMAKE_CROSSCOMPILING_EMULATOR "${RVD_QEMU_AARCH64};-cpu;${_qemu_cpu}")
-endif()
+set(_rvd_triplet aarch64-linux-gnu)
+set(_rvd_qemu_user qemu-aarch64)
+include(${CMAKE_CURRENT_LIST_DIR}/linux-common.cmake)

@@ -33,20 +33,6 @@ set(_flags "-mcpu=${RVD_CPU} -mfpu=${_fpu} -mfloat-abi=hard -Wno-psabi")
 set(CMAKE_C_FLAGS_INIT "${_flags}")
 set(CMAKE_CXX_FLAGS_INIT "${_flags}")
 
-set(CMAKE_FIND_ROOT_PATH /usr/arm-linux-gnueabihf)
-set(CMAKE_FIND_ROOT_PATH_MODE_PROGRAM NEVER)
-set(CMAKE_FIND_ROOT_PATH_MODE_LIBRARY ONLY)
-set(CMAKE_FIND_ROOT_PATH_MODE_INCLUDE ONLY)
-set(CMAKE_FIND_ROOT_PATH_MODE_PACKAGE ONLY)
-
-set(RVD_STATIC ON CACHE BOOL "Link executables statically (cross targets)")
-
-set(_qemu_cpu "${RVD_QEMU_CPU}")
-if(NOT _qemu_cpu)
-  set(_qemu_cpu "${RVD_CPU}")
-endif()
-# The dynamic qemu-arm (package qemu-user), not qemu-arm-static: TCG plugins load only in it.
-find_program(RVD_QEMU_ARM qemu-arm NO_CMAKE_FIND_ROOT_PATH)
-if(RVD_QEMU_ARM)
-  set(CMAKE_CROSSCOMPILING_EMULATOR "${RVD_QEMU_ARM};-cpu;${_qemu_cpu}")
-endif()
+set(_rvd_triplet arm-linux-gnueabihf)
+set(_rvd_qemu_user qemu-arm)
+include(${CMAKE_CURRENT_LIST_DIR}/linux-common.cmake)

@@ -12,6 +12,14 @@ import pytest  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.fixture(autouse=True)
+def _no_cpu_override(monkeypatch):
+    """A user's $QEMU_CPU must not change what the tests check (tests that swap the CPU set it)."""
+    from qemu import targets
+
+    monkeypatch.delenv(targets.CPU_ENV, raising=False)
+
+
 @pytest.fixture(scope="session")
 def flight_exe() -> Path:
     """The native flight executable (built by `make build`, which `make test` runs first)."""

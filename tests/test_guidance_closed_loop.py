@@ -9,7 +9,7 @@ import pytest
 from scipy.linalg import expm
 
 import flight_sw as fsw
-from test_guidance_cw import cw_a
+from cw_reference import cw_a
 from test_guidance_qp import DEG, in_pyramid, quat_after, rotate, solve_clarabel
 
 # The dissertation's tables 3.3-3.5: (delta-v, time) per phase.

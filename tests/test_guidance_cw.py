@@ -7,18 +7,9 @@ import pytest
 from scipy.linalg import expm
 
 import flight_sw as fsw
+from cw_reference import cw_a
 
 MU, RE = 3.986004415e14, 6378136.3  # EGM96, as host_sim/constants.py
-
-
-def cw_a(n):
-    """CW system matrix from the equations of motion xdd = 3n^2 x + 2n yd, ydd = -2n xd, zdd = -n^2 z."""
-    a = np.zeros((6, 6))
-    a[0:3, 3:6] = np.eye(3)
-    a[3, 0], a[3, 4] = 3 * n * n, 2 * n
-    a[4, 3] = -2 * n
-    a[5, 2] = -n * n
-    return a
 
 
 def test_mean_motion_is_keplerian():

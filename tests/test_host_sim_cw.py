@@ -13,18 +13,10 @@ from host_sim.cw import cw_forced_response, cw_stm, drift_free_velocity
 from host_sim.scenario import load
 from host_sim.simulator import Simulator
 
+from cw_reference import cw_a
+
 N_500KM = math.sqrt(k.MU_EARTH_M3_S2 / (k.R_EARTH_M + 500e3) ** 3)
 AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
-
-
-def cw_a(n):
-    """CW system matrix written out here from the equations of motion (independent of host_sim)."""
-    a = np.zeros((6, 6))
-    a[0:3, 3:6] = np.eye(3)
-    a[3, 0], a[3, 4] = 3 * n * n, 2 * n
-    a[4, 3] = -2 * n
-    a[5, 2] = -n * n
-    return a
 
 
 def scenario_at(position, velocity, name="case1_vbar"):

@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-zenoh = pytest.importorskip("zenoh")
+import zenoh  # noqa: E402  (pinned dependency: a missing one is a failure, not a skip)
 
 from zenoh_link_harness import (  # noqa: E402
     REPO, Probe, RawPeer, declare_keyexpr, fragment, frame, free_port, push_put, python_zenoh,

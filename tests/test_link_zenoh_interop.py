@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-zenoh = pytest.importorskip("zenoh")
+import zenoh  # noqa: E402  (pinned dependency: a missing one is a failure, not a skip)
 
 from zenoh_link_harness import Probe, free_port, pattern, python_zenoh, wait_matching  # noqa: E402
 

@@ -28,11 +28,6 @@ SPIN = 20_000
 STEPS = 4
 
 
-@pytest.fixture(autouse=True)
-def _no_cpu_override(monkeypatch):
-    monkeypatch.delenv(targets.CPU_ENV, raising=False)
-
-
 @pytest.fixture(scope="module")
 def plugin_lib():
     lib = plugin.build(download=os.environ.get("RVD_QEMU_FETCH") == "1")

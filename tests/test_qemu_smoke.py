@@ -18,11 +18,6 @@ from qemu import build, targets, user
 pytestmark = pytest.mark.qemu
 
 
-@pytest.fixture(autouse=True)
-def _no_cpu_override(monkeypatch):
-    monkeypatch.delenv(targets.CPU_ENV, raising=False)
-
-
 # ------------------------------------------------------------------------------- registry
 def test_registry_describes_every_target():
     assert set(targets.names()) == {"rpi3", "q7s", "beaglebone", "rpi4", "host"}

@@ -27,11 +27,6 @@ SPIN = 500_000
 REPEAT = 3
 
 
-@pytest.fixture(autouse=True)
-def _no_cpu_override(monkeypatch):
-    monkeypatch.delenv(targets.CPU_ENV, raising=False)
-
-
 @pytest.fixture(scope="module")
 def echo_server():
     server = socket.create_server(("127.0.0.1", 0))

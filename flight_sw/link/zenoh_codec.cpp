@@ -345,6 +345,15 @@ const char* skip_extensions(Reader& r) {
 }
 
 // ---- network messages, §7 ----
+namespace {
+// The key expression and the optional extensions that open Push, Request and Response.
+const char* read_wire_head(Reader& r, uint8_t h, NetworkMsg& m) {
+  if (const char* e = read_wire_expr(r, has(h, kF1), has(h, kF2), m.wire)) return e;
+  m.has_wire = true;
+  return has(h, kFlagZ) ? skip_extensions(r) : nullptr;
+}
+}  // namespace
+
 const char* decode_network(Reader& r, NetworkMsg& m) {
   uint8_t h = 0;
   if (!r.u8(h)) return kTruncated;
@@ -352,20 +361,12 @@ const char* decode_network(Reader& r, NetworkMsg& m) {
   m.mid = mid_of(h);
   switch (m.mid) {
     case nmid::Push: {
-      if (const char* e = read_wire_expr(r, has(h, kF1), has(h, kF2), m.wire)) return e;
-      m.has_wire = true;
-      if (has(h, kFlagZ)) {
-        if (const char* e = skip_extensions(r)) return e;
-      }
+      if (const char* e = read_wire_head(r, h, m)) return e;
       return decode_put_or_del(r, m.data);
     }
     case nmid::Request: {
       if (const char* e = read_u32(r, m.request_id)) return e;
-      if (const char* e = read_wire_expr(r, has(h, kF1), has(h, kF2), m.wire)) return e;
-      m.has_wire = true;
-      if (has(h, kFlagZ)) {
-        if (const char* e = skip_extensions(r)) return e;
-      }
+      if (const char* e = read_wire_head(r, h, m)) return e;
       uint8_t b = 0;
       if (!r.u8(b)) return kTruncated;
       if (mid_of(b) == dmid::Query) return decode_query(r, b, m.data);
@@ -375,11 +376,7 @@ const char* decode_network(Reader& r, NetworkMsg& m) {
     }
     case nmid::Response: {
       if (const char* e = read_u32(r, m.request_id)) return e;
-      if (const char* e = read_wire_expr(r, has(h, kF1), has(h, kF2), m.wire)) return e;
-      m.has_wire = true;
-      if (has(h, kFlagZ)) {
-        if (const char* e = skip_extensions(r)) return e;
-      }
+      if (const char* e = read_wire_head(r, h, m)) return e;
       uint8_t b = 0;
       if (!r.u8(b)) return kTruncated;
       if (mid_of(b) == dmid::Reply) return decode_reply(r, b, m.data);
