@@ -235,12 +235,15 @@ void PhaseQp::fill_keepout(const Vector6d& x0, const TargetState& target) {
   }
 }
 
+// The rendezvous set point's range from the target: outside the keep-out sphere, or the origin
+// when the no-set-point variant (Table 3.6) is chosen.
+double PhaseQp::rendezvous_setpoint_range_m() const {
+  return params_.rendezvous_use_setpoint ? params_.keepout_radius_m + params_.rendezvous_setpoint_offset_m : 0.0;
+}
+
 void PhaseQp::build_rendezvous(const Vector6d& x0, const TargetState& target) {
   const PhaseParams& pp = params_.rendezvous;
-  const double range = params_.rendezvous_use_setpoint
-                           ? params_.keepout_radius_m + params_.rendezvous_setpoint_offset_m
-                           : 0.0;
-  fill_setpoints(target, range);
+  fill_setpoints(target, rendezvous_setpoint_range_m());
   for (int i = 0; i <= N_; ++i) qp_.q[i].noalias() = -qp_.Q[i] * reference_[i];
   fill_keepout(x0, target);
   if (cone_slacks_) {  // terminal cone penalty with the pyramid predicted at t_N (sec 3.4)
@@ -251,10 +254,7 @@ void PhaseQp::build_rendezvous(const Vector6d& x0, const TargetState& target) {
 
 void PhaseQp::build_rendezvous_one_norm(const Vector6d& x0, const TargetState& target) {
   const PhaseParams& pp = params_.rendezvous;
-  const double range = params_.rendezvous_use_setpoint
-                           ? params_.keepout_radius_m + params_.rendezvous_setpoint_offset_m
-                           : 0.0;
-  fill_setpoints(target, range);
+  fill_setpoints(target, rendezvous_setpoint_range_m());
   for (int i = 0; i <= N_; ++i) {
     const StageLayout L = stage(i);
     const Vector6d qe = (i < N_ ? Qw_ : Qf_).diagonal().cwiseProduct(reference_[i]);

@@ -76,6 +76,7 @@ class PhaseQp {
   void fill_input_box(int stage);
   void fill_keepout(const Vector6d& x0, const TargetState& target);
   void fill_setpoints(const TargetState& target, double range_m);
+  double rendezvous_setpoint_range_m() const;
 
   Phase phase_;
   GuidanceParams params_;
