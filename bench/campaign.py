@@ -193,10 +193,10 @@ class Campaign:
                 initrd = tdir / "initrd.cpio"
                 if not initrd.exists() or initrd.stat().st_mtime < exe.path.stat().st_mtime:
                     system.program_initrd(img, exe.path, initrd)
-                fp = hashlib.sha256(f"{fp_base}system{rep}{img.kernel_version}{SYSTEM_CYCLE_GRID_US}".encode()).hexdigest()[:16]
+                fp = hashlib.sha256(f"{fp_base}system{rep}{img.kernel_version}semihosting".encode()).hexdigest()[:16]
 
                 def launch(args, img=img, initrd=initrd):
-                    return system.command(t, img, initrd, args)
+                    return system.command(t, img, initrd, args, net=False, semihosting=True)
 
                 self._system_run(run_dir, fp, launch, {**ideal_meta, "mode": "system", "kernel": img.kernel_version})
                 info["runs"].append(str(run_dir.relative_to(self.out)))
@@ -204,24 +204,24 @@ class Campaign:
         return info
 
     def _system_run(self, run_dir: Path, fp: str, launch, meta: dict) -> dict:
-        """System mode: the guest reaches the host at 10.0.2.2, so the flight software gets that endpoint."""
+        """System mode, with the link through semihosting (qemu/semihosting_link.py): the guest
+        clock stands still while the host computes, so two runs give the same in-guest times."""
+        from qemu import semihosting_link
 
-        def flight_command(args):
-            # run_pil passes --connect tcp/127.0.0.1:PORT; inside the guest the host is 10.0.2.2.
-            args = [a.replace("tcp/127.0.0.1:", "tcp/10.0.2.2:") for a in args]
-            return launch(args)
-
-        # The PMU counts the solves' user-mode instructions in the guest (where the plugin cannot);
-        # a long host lease keeps Zenoh keep-alives (network interrupts in the guest) rare; each step
-        # starts on a 20 ms grid of the guest clock (a multiple of the kernel tick at HZ 100 and
-        # 250), so the tick interrupts fall at the same points of each solve in every run.
+        # One FIFO directory for both runs: its path is on the guest's kernel command line.
+        flight_command = semihosting_link.flight_command(launch, run_dir.parent / "semihosting-link")
+        # Everything the guest receives is the same byte for byte in both runs: the run id (in the
+        # keys and on the kernel command line) and the host's ZenohID (Zenoh derives the initial
+        # sequence numbers from the two ZenohIDs; the guest's own comes from its kernel's RNG, which
+        # is seeded identically when its inputs are). The PMU counts the solves' user-mode
+        # instructions in the guest, where the plugin cannot.
         return self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True, flight_command=flight_command,
-                        meta={**meta, "cycle_grid_us": SYSTEM_CYCLE_GRID_US},
-                        flight_args=["--pmu-instructions", "--cycle-grid-us", str(SYSTEM_CYCLE_GRID_US)],
-                        config=ServerConfig(zenoh_lease_ms=60000))
+                        meta={**meta, "link": "semihosting"},
+                        flight_args=["--pmu-instructions"],
+                        config=ServerConfig(run_id="case1-system", zenoh_id=SYSTEM_HOST_ZENOH_ID))
 
 
-SYSTEM_CYCLE_GRID_US = 20000  # system mode: steps start on this grid of the guest's monotonic clock
+SYSTEM_HOST_ZENOH_ID = "72766470696c"  # "rvdpil": the host's fixed ZenohID in system-mode runs
 
 
 def parse_args(argv=None) -> tuple[Spec, Path, bool]:

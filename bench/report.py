@@ -110,6 +110,8 @@ def checks(metas: list[dict], df: pd.DataFrame) -> dict:
                           and m.get("mode") == mode)
             if len(dirs) < 2:
                 continue
+            # a comparison of runs that did not dock would compare nothing: say so first
+            res[f"{mode}_runs_docked"] = all(bool(by_dir[d].get("docked")) for d in dirs)
             a = df[df["run"] == dirs[0]][col].to_numpy()
             b = df[df["run"] == dirs[1]][col].to_numpy()
             if not (np.nan_to_num(a).any() or np.nan_to_num(b).any()):
@@ -321,10 +323,9 @@ def write(out: Path) -> Path:
     parts.append("<h2>Checks</h2><p>Case 1 in the ideal setting (CW truth, no noise, impulsive burns, no "
                  "delay). <i>user_instructions</i>: the plugin's counts, two runs under qemu-user. "
                  "<i>system_solve_time_us</i>: the guest's own clock in QEMU system mode with -icount "
-                 "(2<sup>shift</sup> ns per instruction, interrupt handling included; each step starts on "
-                 "a 20 ms grid of the guest clock so that the kernel's tick falls at the same points of "
-                 "each solve; what still differs between runs is asynchronous host I/O through QEMU's "
-                 "user network and the phase of the guest counter, see <i>max_difference</i>); "
+                 "(2<sup>shift</sup> ns per instruction, the guest kernel's interrupt work included), two runs "
+                 "whose link goes through semihosting so that the guest clock stands still while the host "
+                 "computes (qemu/semihosting_link.py); "
                  "<i>system_instructions</i>: the guest PMU's user-mode instruction count (QEMU's Cortex-A53 "
                  "on virt; the A9 model has no PMU). <i>dv_minus_native</i>: total delta-v under QEMU minus "
                  "the native build's (floating-point differences between instruction sets and libm).</p>")
@@ -332,7 +333,7 @@ def write(out: Path) -> Path:
         items = []
         for k, v in c.items():
             cls = ""
-            if k.endswith("_identical"):
+            if k.endswith("_identical") or k.endswith("_runs_docked"):
                 cls = "ok" if v else "bad"
             if k.endswith("_dv_minus_native_mps") and v:
                 cls = "ok" if all(x is not None and abs(x) <= 1e-6 for x in v) else "bad"

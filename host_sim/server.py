@@ -49,12 +49,14 @@ class ZenohLink:
     (with the reason) in `rejected`, never raised into the control loop.
     """
 
-    def __init__(self, run_id: str, endpoint: str, mode: str = "peer", lease_ms: int | None = None):
+    def __init__(self, run_id: str, endpoint: str, mode: str = "peer", lease_ms: int | None = None,
+                 zenoh_id: str | None = None):
         import zenoh  # imported here so that host_sim's physics does not need Zenoh
 
         if mode not in ("peer", "router"):
             raise ValueError(f"mode must be 'peer' or 'router', not {mode!r}")
         self.run_id, self.endpoint, self.mode, self.lease_ms = run_id, endpoint, mode, lease_ms
+        self.zenoh_id = zenoh_id
         self._zenoh = zenoh
         self.inbox: "queue.Queue[tuple[float, object]]" = queue.Queue()
         self.rejected: list[tuple[str, str]] = []
@@ -67,6 +69,8 @@ class ZenohLink:
         conf.insert_json5("mode", f'"{self.mode}"')
         conf.insert_json5("listen/endpoints", f'["{self.endpoint}"]')
         conf.insert_json5("scouting/multicast/enabled", "false")
+        if self.zenoh_id:  # Zenoh derives the initial sequence numbers from both ZenohIDs
+            conf.insert_json5("id", f'"{self.zenoh_id}"')
         if self.lease_ms:  # keep-alives go out every lease/4 when the link is idle
             conf.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
         self.session = z.open(conf)
@@ -123,6 +127,10 @@ class ServerConfig:
     endpoint: str = "tcp/127.0.0.1:7447"
     mode: str = "peer"                 # Zenoh mode of the host session: "peer" or "router"
     zenoh_lease_ms: int | None = None  # host session lease (None: Zenoh's 10 s); keep-alives every lease/4
+    # Fixed ZenohID of the host session (hex; None: random). When the flight's ZID repeats too,
+    # every message of a run is the same byte for byte from run to run (Zenoh derives the initial
+    # sequence numbers from the two ZIDs), as the bit-exact system-mode timing check needs.
+    zenoh_id: str | None = None
     lockstep: bool = True              # False: real-time pacing
     speedup: float = 1.0               # real-time pacing: simulated seconds per wall second
     hello_timeout_s: float = 60.0      # wait for the flight software to connect (QEMU boots take seconds)
@@ -189,7 +197,7 @@ class PilServer:
         exit code): the server then stops waiting at once instead of running out its timeouts."""
         self.sim, self.cfg, self.record, self.on_step = sim, config, record, on_step
         self.flight_exited = flight_exited or (lambda: None)
-        self.link = ZenohLink(config.run_id, config.endpoint, config.mode, config.zenoh_lease_ms)
+        self.link = ZenohLink(config.run_id, config.endpoint, config.mode, config.zenoh_lease_ms, config.zenoh_id)
         self.summary = RunSummary(end="running", steps=0, t_s=0.0, dv_total_mps=0.0,
                                   dv_per_phase_mps={p: 0.0 for p in ("rendezvous", "approach", "docking")},
                                   time_per_phase_s={p: 0.0 for p in ("rendezvous", "approach", "docking")},

@@ -1,5 +1,9 @@
 """QEMU system mode: boot a Debian ARM kernel with a tiny initramfs that brings the network up,
-runs one program with the arguments from the kernel command line, and powers off.
+runs one program with the arguments from the kernel command line, and powers off. The guest
+reaches the host over user networking (10.0.2.2) or, with `semihosting=True`, through ARM
+semihosting calls on host files (qemu/semihosting_link.py joins them to a TCP port): the emulated
+CPU stops while such a call waits for the host, so no guest time passes while the host computes,
+and no host-timed packet or network-stack timer lands in the guest's instruction stream.
 
     >>> t = load("rpi3")
     >>> img = image(t)                                  # kernel, dtb, base initramfs (cached)
@@ -10,9 +14,11 @@ The kernel is resolved from its Debian meta package (linux-image-arm64, linux-im
 build time, never by a hard-coded ABI suffix. Images are cached under build/qemu-system/ keyed by
 the kernel and busybox package versions. With the default `icount=True` the guest clock is driven
 by the instruction count (-icount shift=s: one instruction = 2^s ns of guest time, s = 0 except
-vexpress-a9, see qemu/targets.toml) and the RTC by
-the virtual clock, so in-guest times are identical from run to run: an instruction-count proxy,
-not Cortex-A timing. The guest is 10.0.2.15/24 and reaches the host's services at 10.0.2.2.
+vexpress-a9, see qemu/targets.toml) and the RTC by the virtual clock: an instruction-count proxy,
+not Cortex-A timing. In-guest times repeat from run to run when nothing host-timed reaches the
+guest (a program without I/O, or the semihosting link); over the user network they differ by the
+guest kernel's work on packets that arrive at host-dependent instants. The guest is 10.0.2.15/24
+and reaches the host's services at 10.0.2.2.
 """
 from __future__ import annotations
 
@@ -222,7 +228,9 @@ def kernel_command_line(target: Target, args: Sequence[str]) -> str:
 
 
 def command(target: Target, img: Image, initrd: Path, args: Sequence[str] = (), *, icount: bool = True,
-            net: bool = True, memory: str | None = None) -> list[str]:
+            net: bool = True, semihosting: bool = False, memory: str | None = None) -> list[str]:
+    """The QEMU command line. net: user networking (guest 10.0.2.15, host 10.0.2.2).
+    semihosting: the guest's programs may open, read and write host files (semihosting.hpp)."""
     s = target.system
     machine = ",".join([s.machine, *s.machine_options])
     cmd = [target.qemu_system, "-M", machine, "-cpu", target.qemu_cpu, "-m", memory or s.memory, "-smp", "1",
@@ -233,6 +241,8 @@ def command(target: Target, img: Image, initrd: Path, args: Sequence[str] = (), 
         cmd += ["-dtb", str(img.dtb)]
     if net:
         cmd += ["-netdev", "user,id=n0", "-device", "virtio-net-device,netdev=n0"]
+    if semihosting:
+        cmd += ["-semihosting-config", "enable=on,userspace=on,target=native"]
     if icount:
         cmd += ["-icount", f"shift={s.icount_shift},sleep=off", "-rtc", f"base={RTC_BASE},clock=vm"]
     return cmd + list(s.extra_args)

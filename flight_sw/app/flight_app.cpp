@@ -1,12 +1,10 @@
 #include "flight_sw/app/flight_app.hpp"
 
-#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdarg>
 #include <cstdio>
 #include <stdexcept>
-#include <ctime>
 
 #include <sys/resource.h>
 #include <unistd.h>
@@ -138,32 +136,6 @@ msg::Telemetry FlightApp::telemetry() const {
   return t;
 }
 
-namespace {
-void sleep_until_ns(uint64_t t_ns) {
-  timespec at{};
-  at.tv_sec = static_cast<time_t>(t_ns / 1000000000ull);
-  at.tv_nsec = static_cast<long>(t_ns % 1000000000ull);
-  while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &at, nullptr) == EINTR) {
-  }
-}
-
-// Sleep until the next multiple of grid_us on CLOCK_MONOTONIC, then 1 ms more. Linux aligns its
-// tick to the same clock, so the tick's phase at the start of a step is the same every time. The
-// second, short sleep makes the wake-up path the same too: whether the first sleep stopped the
-// idle tick depends on how long it was (on when the nav arrived); a sleep shorter than one tick
-// never stops it.
-void wait_for_cycle_start(double grid_us) {
-  const auto grid_ns = static_cast<uint64_t>(grid_us * 1e3);
-  if (grid_ns == 0) return;
-  timespec now{};
-  clock_gettime(CLOCK_MONOTONIC, &now);
-  const uint64_t now_ns = static_cast<uint64_t>(now.tv_sec) * 1000000000ull + static_cast<uint64_t>(now.tv_nsec);
-  const uint64_t start_ns = (now_ns / grid_ns + 1) * grid_ns;
-  sleep_until_ns(start_ns);
-  sleep_until_ns(start_ns + 1000000ull);
-}
-}  // namespace
-
 std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   const bool first = (nav.flags & 1u) != 0;
   if (last_cmd_ && nav.step == last_cmd_->step) {  // a resend: same answer, guidance state untouched
@@ -201,7 +173,6 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   in.q_lvlh_body = Eigen::Quaterniond(nav.q_lvlh_body[0], nav.q_lvlh_body[1], nav.q_lvlh_body[2], nav.q_lvlh_body[3]);
   in.omega_body_rad_s = Eigen::Vector3d(nav.omega_body_rad_s[0], nav.omega_body_rad_s[1], nav.omega_body_rad_s[2]);
 
-  if (cfg_.cycle_grid_us > 0.0) wait_for_cycle_start(cfg_.cycle_grid_us);
   const int phase_before = phase_index(guidance_->phase());
   const double budget_us = cfg_.deadline_fraction * cfg_.guidance.phase(guidance_->phase()).Ts_s * 1e6;
   counter_.start_step(nav.step);
@@ -264,6 +235,7 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
   link::ZenohConfig zc;
   zc.endpoint = cfg_.endpoint;
   zc.lease_ms = cfg_.lease_ms;
+  zc.untimed = cfg_.untimed_link;
   session_ = std::make_unique<link::ZenohSession>(zc);
   session_->declare_subscriber(key("nav"), [this](const link::Sample& s) { on_nav_bytes(s.payload, s.size); });
   session_->declare_subscriber(key("bye"), [this](const link::Sample& s) {
@@ -271,7 +243,8 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
     if (msg::decode(s.payload, s.size, b) == msg::Error::None) bye_received_ = true;
   });
   link::LinkStatus st = session_->open();
-  note("connecting to %s: %s", cfg_.endpoint.c_str(), link::to_string(st));
+  note("connecting to %s: %s%s%s", cfg_.endpoint.c_str(), link::to_string(st),
+       st == link::LinkStatus::Ok ? "" : ": ", st == link::LinkStatus::Ok ? "" : session_->last_error().c_str());
 
   const auto t_start = Clock::now();
   auto t_last_nav = Clock::now();
@@ -288,9 +261,11 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
       publish_msg("hello", hello(static_cast<uint32_t>(connects)));
       hello_for_connect = connects;
       t_last_nav = Clock::now();
-      note("session %llu up", static_cast<unsigned long long>(connects));
+      const auto& zid = session_->link_info().local_zid;
+      note("session %llu up (our ZenohID %02x%02x%02x%02x...)", static_cast<unsigned long long>(connects),
+           zid.bytes[0], zid.bytes[1], zid.bytes[2], zid.bytes[3]);
     }
-    st = session_->poll(100);
+    st = session_->poll(cfg_.untimed_link ? -1 : 100);
     if (have_nav_) {
       have_nav_ = false;
       t_last_nav = Clock::now();
@@ -308,6 +283,7 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
       reason = hello_for_connect ? ExitReason::LinkLost : ExitReason::NeverConnected;
       break;
     }
+    if (cfg_.untimed_link) continue;
     if (hello_for_connect == 0 && seconds_since(t_start) > cfg_.connect_timeout_s) {
       reason = ExitReason::NeverConnected;
       break;

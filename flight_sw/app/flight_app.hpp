@@ -33,6 +33,10 @@ struct AppConfig {
   double idle_timeout_s = 300.0;   // give up when no nav arrives for this long after hello
   double connect_timeout_s = 60.0; // give up when the first connection does not come up in this time
   uint32_t lease_ms = 20000;       // generous: emulator stalls must not trip the host's lease check
+  // Wait for the host without time limits (link::ZenohConfig::untimed): for QEMU system mode with
+  // -icount sleep=off, where the guest clock stands still while the guest waits. The idle and
+  // connect timeouts are then not applied either; the host-side runner's limit covers a silent host.
+  bool untimed_link = false;
   int telemetry_every = 20;        // steps between telemetry messages (and one at the end)
   int markers = -1;                // instruction markers: -1 auto (ARM builds), 0 off, 1 on
   // Count the solves' user-mode instructions with the CPU's own PMU (perf_event_open). For QEMU
@@ -40,11 +44,6 @@ struct AppConfig {
   // instructions exactly under -icount (Cortex-A53 on virt; the A9 model has no PMU). Never under
   // qemu-user: there the syscall would count the host's instructions.
   bool pmu_instructions = false;
-  // Start each guidance step on the next multiple of this many microseconds of CLOCK_MONOTONIC,
-  // as a rate-group tick would (0: at once). Under QEMU system mode with -icount this makes the
-  // guest's timer interrupts fall at the same points of every solve, run after run: the nav's
-  // arrival time in the guest depends on the host, the grid and Linux's tick grid do not.
-  double cycle_grid_us = 0.0;
   std::string cpu_model;           // reported in hello (defaults to the build's -mcpu)
   bool verbose = false;
 };

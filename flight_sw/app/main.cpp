@@ -29,10 +29,14 @@ const char* kUsage = R"(usage: rvd_flight_sw --run RUN_ID [options]
 
 Link
   --connect ENDPOINT        Zenoh endpoint of the host simulator (default tcp/127.0.0.1:7447;
-                            under QEMU system mode the host is tcp/10.0.2.2:PORT)
+                            under QEMU system mode the host is tcp/10.0.2.2:PORT, or
+                            semihosting/DIR: host FIFOs, see qemu/semihosting_link.py)
   --lease-ms MS             lease announced to the host (default 20000)
   --idle-timeout-s S        exit when no nav arrives for this long (default 300)
   --connect-timeout-s S     exit when the first connection does not come up (default 60)
+  --untimed-link            wait for the host without time limits (QEMU system mode with
+                            -icount sleep=off: the guest clock stands still while it waits, so a
+                            timeout would fire at once); idle and connect timeouts are off too
   --telemetry-every K       steps between telemetry messages (default 20)
 Guidance
   --horizon R,A,D           prediction horizons of rendezvous, approach, docking (default 30,15,12)
@@ -49,8 +53,6 @@ Reporting
   --markers on|off|auto     QEMU instruction-count markers around each solve (default auto: on for ARM)
   --pmu-instructions        count each solve's user-mode instructions with the CPU's PMU
                             (QEMU system mode; the plugin's markers count in user mode)
-  --cycle-grid-us G         start each guidance step on the next multiple of G us of the monotonic
-                            clock, like a rate-group tick (default 0: at once)
   --list-params             print the guidance parameters and exit
   -v, --verbose             log to stderr
 )";
@@ -135,6 +137,7 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
     else if (a == "--lease-ms") cfg.lease_ms = static_cast<uint32_t>(parse_double(value(), a));
     else if (a == "--idle-timeout-s") cfg.idle_timeout_s = parse_double(value(), a);
     else if (a == "--connect-timeout-s") cfg.connect_timeout_s = parse_double(value(), a);
+    else if (a == "--untimed-link") cfg.untimed_link = true;
     else if (a == "--telemetry-every") cfg.telemetry_every = static_cast<int>(parse_double(value(), a));
     else if (a == "--horizon") set_phase_ints(cfg.guidance, split_numbers(value(), 3, "--horizon"), &PhaseParams::N);
     else if (a == "--period") {
@@ -174,11 +177,6 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
       else if (m == "auto") cfg.markers = -1;
       else throw std::invalid_argument("--markers: on, off or auto");
     } else if (a == "--pmu-instructions") cfg.pmu_instructions = true;
-    else if (a == "--cycle-grid-us") {
-      cfg.cycle_grid_us = parse_double(value(), a);
-      if (!(cfg.cycle_grid_us >= 0.0 && cfg.cycle_grid_us <= 1e7))
-        throw std::invalid_argument("--cycle-grid-us: 0 to 10000000");
-    }
     else if (a == "--list-params") list_only = true;
     else if (a == "-v" || a == "--verbose") cfg.verbose = true;
     else if (a == "-h" || a == "--help") { std::fputs(kUsage, stdout); std::exit(0); }

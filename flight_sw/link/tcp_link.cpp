@@ -14,12 +14,20 @@
 #include <chrono>
 #include <cstring>
 
+#include "flight_sw/link/semihosting.hpp"
+
 namespace rvd::link {
 namespace {
 
 using Clock = std::chrono::steady_clock;
 
+// A deadline of time_point::max() means no limit (a negative timeout).
+Clock::time_point deadline_in(int timeout_ms) {
+  return timeout_ms < 0 ? Clock::time_point::max() : Clock::now() + std::chrono::milliseconds(timeout_ms);
+}
+
 int ms_left(Clock::time_point deadline) {
+  if (deadline == Clock::time_point::max()) return -1;
   const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
   return left.count() > 0 ? static_cast<int>(left.count()) : 0;
 }
@@ -37,6 +45,7 @@ int wait_fd(int fd, short events, Clock::time_point deadline) {
     const int r = ::poll(&p, 1, ms_left(deadline));
     if (r >= 0) return r > 0 ? 1 : 0;
     if (errno != EINTR) return -1;
+    if (deadline == Clock::time_point::max()) return 0;  // let an unlimited wait see the signal
   }
 }
 
@@ -61,8 +70,17 @@ const char* to_string(LinkStatus s) {
 }
 
 const char* parse_tcp_endpoint(std::string_view text, TcpEndpoint& out) {
+  constexpr std::string_view kSemihosting = "semihosting/";
+  if (text.substr(0, kSemihosting.size()) == kSemihosting) {
+    text.remove_prefix(kSemihosting.size());
+    if (text.empty() || text.front() != '/')
+      return "semihosting endpoint must name an absolute host directory: semihosting//tmp/...";
+    out = TcpEndpoint{};
+    out.semihosting_dir.assign(text);
+    return nullptr;
+  }
   constexpr std::string_view kScheme = "tcp/";
-  if (text.substr(0, kScheme.size()) != kScheme) return "endpoint must start with 'tcp/'";
+  if (text.substr(0, kScheme.size()) != kScheme) return "endpoint must start with 'tcp/' or 'semihosting/'";
   text.remove_prefix(kScheme.size());
   const size_t meta = text.find('#');  // Zenoh locator metadata, not used by a client
   if (meta != std::string_view::npos) text = text.substr(0, meta);
@@ -89,6 +107,7 @@ const char* parse_tcp_endpoint(std::string_view text, TcpEndpoint& out) {
   if (value == 0 || value > 65535) return "endpoint port must be 1..65535";
   out.host.assign(host);
   out.port = static_cast<uint16_t>(value);
+  out.semihosting_dir.clear();
   return nullptr;
 }
 
@@ -99,12 +118,27 @@ TcpLink::~TcpLink() { close(); }
 void TcpLink::close() {
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
+  semihosting::close(semihosting_rx_);
+  semihosting::close(semihosting_tx_);
+  semihosting_rx_ = semihosting_tx_ = -1;
   rx_begin_ = rx_end_ = 0;
 }
 
 LinkStatus TcpLink::connect(const TcpEndpoint& endpoint, int timeout_ms, std::string* error) {
   close();
-  const Clock::time_point deadline = Clock::now() + std::chrono::milliseconds(timeout_ms);
+  if (!endpoint.semihosting_dir.empty()) {
+    // The host's bridge opens to-guest for writing first, then from-guest for reading: same order.
+    const std::string dir = "semihosting/" + endpoint.semihosting_dir + ": ";
+    semihosting_rx_ = semihosting::open(endpoint.semihosting_dir + "/to-guest", false);
+    if (semihosting_rx_ >= 0) semihosting_tx_ = semihosting::open(endpoint.semihosting_dir + "/from-guest", true);
+    if (semihosting_tx_ < 0) {
+      set_error(error, dir + semihosting::errno_text());
+      close();
+      return LinkStatus::ConnectFailed;
+    }
+    return LinkStatus::Ok;
+  }
+  const Clock::time_point deadline = deadline_in(timeout_ms);
   addrinfo hints{};
   hints.ai_family = AF_UNSPEC;
   hints.ai_socktype = SOCK_STREAM;
@@ -127,7 +161,7 @@ LinkStatus TcpLink::connect(const TcpEndpoint& endpoint, int timeout_ms, std::st
     if (r != 0 && errno == EINPROGRESS) {
       const int w = wait_fd(fd, POLLOUT, deadline);
       if (w <= 0) {
-        last = w == 0 ? "connect timed out after " + std::to_string(timeout_ms) + " ms"
+        last = w == 0 ? "connect timed out or interrupted after " + std::to_string(timeout_ms) + " ms"
                       : errno_text("poll");
         ::close(fd);
         continue;
@@ -156,15 +190,21 @@ LinkStatus TcpLink::connect(const TcpEndpoint& endpoint, int timeout_ms, std::st
 }
 
 LinkStatus TcpLink::send_batch(uint8_t* frame, size_t size, int timeout_ms, std::string* error) {
-  if (fd_ < 0) return LinkStatus::NotConnected;
+  if (!is_open()) return LinkStatus::NotConnected;
   if (size > kMaxBatch) {
     set_error(error, "batch of " + std::to_string(size) + " bytes exceeds the u16 length prefix");
     return LinkStatus::MessageTooLarge;
   }
   frame[0] = static_cast<uint8_t>(size & 0xFF);
   frame[1] = static_cast<uint8_t>(size >> 8);
-  const Clock::time_point deadline = Clock::now() + std::chrono::milliseconds(timeout_ms);
   const size_t total = size + kPrefixSize;
+  if (semihosting_tx_ >= 0) {
+    if (semihosting::write(semihosting_tx_, frame, total)) return LinkStatus::Ok;
+    set_error(error, "semihosting write: " + semihosting::errno_text());
+    close();
+    return LinkStatus::LinkLost;
+  }
+  const Clock::time_point deadline = deadline_in(timeout_ms);
   size_t sent = 0;
   while (sent < total) {
     const ssize_t n = ::send(fd_, frame + sent, total - sent, MSG_NOSIGNAL);
@@ -193,8 +233,8 @@ LinkStatus TcpLink::send_batch(uint8_t* frame, size_t size, int timeout_ms, std:
 
 LinkStatus TcpLink::receive_batch(const uint8_t*& data, size_t& size, int timeout_ms,
                                   std::string* error) {
-  if (fd_ < 0) return LinkStatus::NotConnected;
-  const Clock::time_point deadline = Clock::now() + std::chrono::milliseconds(timeout_ms);
+  if (!is_open()) return LinkStatus::NotConnected;
+  const Clock::time_point deadline = deadline_in(timeout_ms);
   for (;;) {
     const size_t have = rx_end_ - rx_begin_;
     if (have >= kPrefixSize) {
@@ -213,14 +253,22 @@ LinkStatus TcpLink::receive_batch(const uint8_t*& data, size_t& size, int timeou
       rx_begin_ = 0;
       rx_end_ = have;
     }
-    const ssize_t n = ::recv(fd_, rx_.data() + rx_end_, rx_.size() - rx_end_, 0);
+    if (semihosting_rx_ >= 0 && timeout_ms == 0) return LinkStatus::Timeout;  // a read would block
+    const ssize_t n = semihosting_rx_ >= 0
+                          ? semihosting::read(semihosting_rx_, rx_.data() + rx_end_, rx_.size() - rx_end_)
+                          : ::recv(fd_, rx_.data() + rx_end_, rx_.size() - rx_end_, 0);
     if (n > 0) {
       rx_end_ += static_cast<size_t>(n);
       continue;
     }
     if (n == 0) {
-      set_error(error, have ? "remote closed TCP in the middle of a batch"
-                            : "remote closed the TCP connection");
+      set_error(error, have ? "remote closed the stream in the middle of a batch"
+                            : "remote closed the connection");
+      close();
+      return LinkStatus::LinkLost;
+    }
+    if (semihosting_rx_ >= 0) {
+      set_error(error, "semihosting read: " + semihosting::errno_text());
       close();
       return LinkStatus::LinkLost;
     }

@@ -1,7 +1,11 @@
 // The TCP layer under the Zenoh session: connect with a timeout, TCP_NODELAY, length-prefixed
 // batches (u16 little-endian length, then the batch: zenoh-wire-notes.md §3), non-blocking socket
-// with poll()-based waits. Every call takes a timeout; nothing blocks forever. The receive buffer
-// is allocated once, in the constructor.
+// with poll()-based waits. The same byte stream can also run through ARM semihosting
+// ("semihosting/<host dir>": two FIFOs on the host, <dir>/to-guest and <dir>/from-guest, that
+// qemu/semihosting_link.py joins to the host's TCP endpoint), for QEMU system-mode runs whose guest
+// clock must stand still while the host computes (semihosting.hpp). Every call takes a timeout
+// (negative: wait without limit); semihosting reads can only wait without limit or not at all.
+// The receive buffer is allocated once.
 #pragma once
 
 #include <cstddef>
@@ -32,8 +36,10 @@ const char* to_string(LinkStatus s);
 struct TcpEndpoint {
   std::string host;
   uint16_t port = 0;
+  std::string semihosting_dir;  // semihosting/<dir>: the stream runs through host FIFOs instead
 };
-// Parses "tcp/<host>:<port>" ("tcp/[::1]:7447" for IPv6). nullptr when valid, else why not.
+// Parses "tcp/<host>:<port>" ("tcp/[::1]:7447" for IPv6) or "semihosting/<host dir>"
+// ("semihosting//tmp/rvd-link"). nullptr when valid, else why not.
 const char* parse_tcp_endpoint(std::string_view text, TcpEndpoint& out);
 
 class TcpLink {
@@ -46,7 +52,8 @@ class TcpLink {
   TcpLink(const TcpLink&) = delete;
   TcpLink& operator=(const TcpLink&) = delete;
 
-  // Resolves the host, connects within timeout_ms, sets TCP_NODELAY. Closes any previous socket.
+  // Resolves the host, connects within timeout_ms, sets TCP_NODELAY (semihosting: opens the two
+  // FIFOs, waiting for the host's end without limit). Closes any previous connection.
   LinkStatus connect(const TcpEndpoint& endpoint, int timeout_ms, std::string* error);
 
   // Sends one batch. `frame` holds kPrefixSize free bytes followed by `size` batch bytes; the
@@ -54,15 +61,17 @@ class TcpLink {
   // a stall after a partial write is LinkLost, since the stream can no longer be resynchronised.
   LinkStatus send_batch(uint8_t* frame, size_t size, int timeout_ms, std::string* error);
 
-  // Waits up to timeout_ms (0 = only what is already there) for one whole batch. On Ok, `data`
+  // Waits up to timeout_ms (0 = only what is already there; negative = without limit; semihosting:
+  // any nonzero timeout waits without limit) for one whole batch. On Ok, `data`
   // and `size` view it inside the link's buffer until the next receive_batch() or connect().
   LinkStatus receive_batch(const uint8_t*& data, size_t& size, int timeout_ms, std::string* error);
 
   void close();
-  bool is_open() const { return fd_ >= 0; }
+  bool is_open() const { return fd_ >= 0 || semihosting_rx_ >= 0; }
 
  private:
   int fd_ = -1;
+  long semihosting_rx_ = -1, semihosting_tx_ = -1;  // host handles of to-guest and from-guest
   std::vector<uint8_t> rx_;  // two maximal batches, so one recv() can fetch several batches
   size_t rx_begin_ = 0, rx_end_ = 0;
 };

@@ -2,7 +2,11 @@
 // /work/shared/zenoh-wire-notes.md.
 #include "flight_sw/link/zenoh_session.hpp"
 
+#include <sys/random.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <ctime>
 #include <thread>
 
 #include "flight_sw/link/zenoh_keyexpr.hpp"
@@ -19,6 +23,21 @@ constexpr size_t kMaxRemoteKeyExprs = 1024;
 constexpr uint16_t kMinBatch = 64;
 
 using Clock = std::chrono::steady_clock;
+
+// Seed for the ZenohIDs and initial SNs: unique, not secret. std::random_device would block in
+// getrandom() until the kernel's entropy pool is initialised, seconds on a freshly booted flight
+// computer (or an emulated one) without a hardware RNG; GRND_INSECURE never blocks.
+uint64_t session_seed() {
+  uint64_t seed = 0;
+#ifdef GRND_INSECURE
+  if (::getrandom(&seed, sizeof seed, GRND_INSECURE) == static_cast<ssize_t>(sizeof seed)) return seed;
+#endif
+  if (::getrandom(&seed, sizeof seed, GRND_NONBLOCK) == static_cast<ssize_t>(sizeof seed)) return seed;
+  timespec t{};  // kernels before 5.6 early in boot: time and pid still tell two sessions apart
+  clock_gettime(CLOCK_REALTIME, &t);
+  return (static_cast<uint64_t>(t.tv_sec) * 1000000000ull + static_cast<uint64_t>(t.tv_nsec)) ^
+         (static_cast<uint64_t>(::getpid()) << 40);
+}
 
 // Milliseconds until `t`, rounded up so that a wait never ends just before its deadline.
 int ms_until(Clock::time_point t) {
@@ -100,7 +119,7 @@ class ZenohSession::Dispatcher : public BatchHandler {
 ZenohSession::ZenohSession(ZenohConfig config)
     : config_(std::move(config)),
       tx_(TcpLink::kPrefixSize + TcpLink::kMaxBatch),
-      rng_(std::random_device{}()) {
+      rng_(session_seed()) {
   key_scratch_.reserve(256);
 }
 
@@ -112,6 +131,8 @@ ZenohSession::~ZenohSession() {
 const char* ZenohSession::check_config() const {
   TcpEndpoint ep;
   if (const char* e = parse_tcp_endpoint(config_.endpoint, ep)) return e;
+  if (!ep.semihosting_dir.empty() && !config_.untimed)
+    return "a semihosting endpoint cannot time out: it needs untimed waits (--untimed-link)";
   if (config_.lease_ms < 10) return "lease_ms must be at least 10 ms";
   if (config_.batch_size < kMinBatch) return "batch_size must be at least 64 bytes";
   if (config_.connect_timeout_ms <= 0 || config_.send_timeout_ms <= 0)
@@ -155,7 +176,7 @@ LinkStatus ZenohSession::handshake_receive(BatchHandler& handler, const char* wa
     const uint8_t* data = nullptr;
     size_t size = 0;
     std::string err;
-    const LinkStatus s = link_.receive_batch(data, size, ms_until(deadline), &err);
+    const LinkStatus s = link_.receive_batch(data, size, config_.untimed ? -1 : ms_until(deadline), &err);
     if (s == LinkStatus::Timeout) {
       last_error_ = std::string("no ") + waiting_for + " within " +
                     std::to_string(config_.connect_timeout_ms) + " ms";
@@ -185,7 +206,7 @@ LinkStatus ZenohSession::connect_and_handshake() {
     return LinkStatus::InvalidArgument;
   }
   std::string err;
-  if (link_.connect(endpoint, config_.connect_timeout_ms, &err) != LinkStatus::Ok) {
+  if (link_.connect(endpoint, link_timeout_ms(config_.connect_timeout_ms), &err) != LinkStatus::Ok) {
     last_error_ = err;
     return LinkStatus::ConnectFailed;
   }
@@ -209,7 +230,7 @@ LinkStatus ZenohSession::connect_and_handshake() {
   // InitSyn: our ZID, 32-bit SNs, the proposed batch size, patch 1 (§4.1).
   Writer w(tx_.data() + TcpLink::kPrefixSize, TcpLink::kMaxBatch);
   encode_init_syn(w, zid_, kResolution32, config_.batch_size, true, kPatch);
-  if (link_.send_batch(tx_.data(), w.size(), config_.send_timeout_ms, &err) != LinkStatus::Ok)
+  if (link_.send_batch(tx_.data(), w.size(), link_timeout_ms(config_.send_timeout_ms), &err) != LinkStatus::Ok)
     return fail("sending InitSyn: " + err);
   const uint8_t* rest = nullptr;
   size_t rest_size = 0;
@@ -238,7 +259,7 @@ LinkStatus ZenohSession::connect_and_handshake() {
   Writer w2(tx_.data() + TcpLink::kPrefixSize, TcpLink::kMaxBatch);
   if (!encode_open_syn(w2, config_.lease_ms, initial_sn, ack.cookie))
     return fail("cookie too large for one batch");
-  if (link_.send_batch(tx_.data(), w2.size(), config_.send_timeout_ms, &err) != LinkStatus::Ok)
+  if (link_.send_batch(tx_.data(), w2.size(), link_timeout_ms(config_.send_timeout_ms), &err) != LinkStatus::Ok)
     return fail("sending OpenSyn: " + err);
   HandshakeHandler open_step(true);
   if (handshake_receive(open_step, "OpenAck", rest, rest_size) != LinkStatus::Ok)
@@ -340,7 +361,7 @@ Writer ZenohSession::frame_writer() {
 
 LinkStatus ZenohSession::send_batch(size_t batch_bytes) {
   std::string err;
-  const LinkStatus s = link_.send_batch(tx_.data(), batch_bytes, config_.send_timeout_ms, &err);
+  const LinkStatus s = link_.send_batch(tx_.data(), batch_bytes, link_timeout_ms(config_.send_timeout_ms), &err);
   if (s == LinkStatus::Ok) {
     last_tx_ = Clock::now();
     ++stats_.batches_tx;
@@ -531,8 +552,9 @@ LinkStatus ZenohSession::undeclare_subscriber(uint32_t id) {
 
 LinkStatus ZenohSession::poll(int timeout_ms) {
   if (in_callback_) return LinkStatus::Busy;
+  const bool unlimited = timeout_ms < 0;
   const Clock::time_point deadline =
-      Clock::now() + std::chrono::milliseconds(std::max(0, timeout_ms));
+      unlimited ? Clock::time_point::max() : Clock::now() + std::chrono::milliseconds(timeout_ms);
   switch (state_) {
     case State::Idle:
     case State::Closed: return LinkStatus::NotConnected;
@@ -562,9 +584,14 @@ LinkStatus ZenohSession::poll(int timeout_ms) {
     service_keep_alive();
     if (state_ != State::Connected) return LinkStatus::LinkLost;
     if (got && Clock::now() >= deadline) return LinkStatus::Ok;
-    // Wake for the caller's deadline, the remote's lease and our next KeepAlive, whichever first.
-    const int wait =
-        got ? 0 : ms_until(std::min({deadline, last_rx_ + remote_lease, last_tx_ + keep_alive}));
+    // Wake for the caller's deadline, the remote's lease and our next KeepAlive, whichever first
+    // (untimed: only for the caller's deadline).
+    int wait = 0;
+    if (!got && config_.untimed) {
+      wait = unlimited ? -1 : ms_until(deadline);
+    } else if (!got) {
+      wait = ms_until(std::min({deadline, last_rx_ + remote_lease, last_tx_ + keep_alive}));
+    }
     const uint8_t* data = nullptr;
     size_t size = 0;
     std::string err;
@@ -579,8 +606,9 @@ LinkStatus ZenohSession::poll(int timeout_ms) {
     }
     if (s != LinkStatus::Timeout) return lost(LinkStatus::LinkLost, err);
     if (got) return LinkStatus::Ok;
+    if (unlimited && config_.untimed) return LinkStatus::Timeout;  // a signal interrupted the wait
     const Clock::time_point now = Clock::now();
-    if (now - last_rx_ >= remote_lease) {  // checked only after the socket was drained
+    if (!config_.untimed && now - last_rx_ >= remote_lease) {  // checked only after the socket was drained
       return lost(LinkStatus::LeaseExpired, "nothing received from the remote for its lease of " +
                                                 std::to_string(info_.remote_lease_ms) + " ms");
     }

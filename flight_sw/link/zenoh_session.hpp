@@ -50,6 +50,12 @@ struct ZenohConfig {
   int send_timeout_ms = 2000;      // a batch not written in this time is reported (see TcpLink)
   size_t max_reassembled_bytes = 1u << 20;  // cap for one fragmented message from the remote
   ReconnectPolicy reconnect;
+  // Wait for the remote without time limits: connect, handshake and sends take as long as they
+  // take, poll(-1) waits until traffic arrives, the remote's lease is not enforced. For QEMU
+  // system mode with -icount sleep=off, where the guest clock stands still while the guest waits
+  // and a timeout would make QEMU jump the clock to it at once instead of after the time it
+  // names; the host-side runner's real-time limit then covers a silent host.
+  bool untimed = false;
 };
 
 // How the key of a received message was written on the wire (§7.3).
@@ -134,7 +140,7 @@ class ZenohSession {
   LinkStatus put(std::string_view key, const uint8_t* data, size_t size,
                  const PutOptions& options = {});
 
-  // Waits up to timeout_ms for traffic; once something arrived, also handles whatever else is
+  // Waits up to timeout_ms (negative: without limit) for traffic; once something arrived, also handles whatever else is
   // already buffered, then returns Ok. Timeout when nothing arrived. Also sends KeepAlives,
   // detects lease expiry and, when the link is down, makes the next scheduled reconnect attempt
   // (one attempt may take up to 3 x connect_timeout_ms beyond timeout_ms).
@@ -203,6 +209,7 @@ class ZenohSession {
   bool resolve_key(const zenoh::WireExpr& w, std::string_view& key, KeyMapping& mapping);
   zenoh::WireExpr wire_for(std::string_view key) const;
   void service_keep_alive();
+  int link_timeout_ms(int configured) const { return config_.untimed ? -1 : configured; }
   const char* check_config() const;
 
   ZenohConfig config_;

@@ -85,6 +85,12 @@ TEST_CASE("configuration, keys and calls without a link are reported, not crashe
   ZenohSession b(cfg);
   CHECK(b.open() == LinkStatus::InvalidArgument);
 
+  ZenohConfig timed_semihosting;  // a semihosting read cannot time out, so timed waits are refused
+  timed_semihosting.endpoint = "semihosting//tmp/rvd-link";
+  ZenohSession d(timed_semihosting);
+  CHECK(d.open() == LinkStatus::InvalidArgument);
+  CHECK(d.last_error().find("--untimed-link") != std::string::npos);
+
   ZenohConfig ok;
   ok.batch_size = 2048;
   ZenohSession c(ok);

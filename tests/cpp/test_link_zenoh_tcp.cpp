@@ -8,9 +8,12 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
+#include <thread>
 #include <string>
 #include <vector>
 
+#include "flight_sw/link/semihosting.hpp"
 #include "flight_sw/link/tcp_link.hpp"
 
 using namespace rvd::link;
@@ -60,6 +63,62 @@ TEST_CASE("endpoint parsing accepts Zenoh TCP locators and explains bad ones") {
                           "tcp/[::1]80", "127.0.0.1:7447"}) {
     CHECK_MESSAGE(parse_tcp_endpoint(bad, e) != nullptr, bad);
   }
+  REQUIRE(parse_tcp_endpoint("semihosting//tmp/rvd link", e) == nullptr);
+  CHECK(e.semihosting_dir == "/tmp/rvd link");
+  CHECK(e.host.empty());
+  REQUIRE(parse_tcp_endpoint("tcp/h:1", e) == nullptr);
+  CHECK(e.semihosting_dir.empty());
+  for (const char* bad : {"semihosting/", "semihosting/tmp/x"}) {
+    CHECK_MESSAGE(parse_tcp_endpoint(bad, e) != nullptr, bad);
+  }
+}
+
+TEST_CASE("a semihosting endpoint that cannot be opened fails with the reason") {
+  // Natively there is no semihosting: the probe says so (on ARM hardware it would catch the SIGILL
+  // of AArch64's HLT or the ENOSYS of AArch32's SVC instead of dying). Under qemu-user, which runs
+  // these tests for the ARM builds and always offers semihosting, the host's open() fails.
+  TcpEndpoint e;
+  REQUIRE(parse_tcp_endpoint("semihosting//tmp/rvd-no-such-link", e) == nullptr);
+  TcpLink link;
+  std::string err;
+  CHECK(link.connect(e, -1, &err) == LinkStatus::ConnectFailed);
+  CHECK_MESSAGE(err.find("semihosting//tmp/rvd-no-such-link") == 0, err);
+#if defined(__aarch64__) || defined(__arm__)
+  CHECK_MESSAGE((err.find("No such file") != std::string::npos) == semihosting::available(), err);
+#else
+  CHECK_FALSE(semihosting::available());
+  CHECK_MESSAGE(err.find("semihosting is not available") != std::string::npos, err);
+#endif
+  CHECK_FALSE(link.is_open());
+  const uint8_t* data = nullptr;
+  size_t size = 0;
+  CHECK(link.receive_batch(data, size, -1, &err) == LinkStatus::NotConnected);
+}
+
+TEST_CASE("a negative timeout waits without limit for the whole batch") {
+  Listener l;
+  TcpLink link;
+  std::string err;
+  REQUIRE(link.connect({"127.0.0.1", l.port}, 1000, &err) == LinkStatus::Ok);
+  const int peer = ::accept(l.fd, nullptr, nullptr);
+  REQUIRE(peer >= 0);
+  std::thread late([peer] {  // the batch comes in two pieces, the second after a pause
+    const uint8_t head[] = {3, 0, 'a'};
+    const uint8_t tail[] = {'b', 'c'};
+    ::send(peer, head, sizeof head, 0);
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    ::send(peer, tail, sizeof tail, 0);
+  });
+  const uint8_t* data = nullptr;
+  size_t size = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  const LinkStatus st = link.receive_batch(data, size, -1, &err);
+  const auto waited = std::chrono::steady_clock::now() - t0;
+  late.join();
+  ::close(peer);
+  REQUIRE(st == LinkStatus::Ok);
+  CHECK(std::string(reinterpret_cast<const char*>(data), size) == "abc");
+  CHECK(waited >= std::chrono::milliseconds(250));  // it did wait for the second piece
 }
 
 TEST_CASE("connect to a closed port fails with a reason") {

@@ -1,0 +1,132 @@
+"""Run QEMU with the flight software's Zenoh link going through semihosting: two FIFOs on the host,
+joined to the host simulator's TCP endpoint.
+
+    python -m qemu.semihosting_link --connect 127.0.0.1:7447 --dir /tmp/rvd-link -- qemu-system-... 
+
+The guest (flight_sw with --connect semihosting/DIR --untimed-link) opens DIR/to-guest for reading
+and DIR/from-guest for writing through semihosting calls. This bridge opens their other ends,
+then connects to the host's TCP endpoint and copies bytes both ways, so the host's Zenoh sees an
+ordinary TCP client. A semihosting read blocks inside one guest instruction, so the emulated CPU
+(and, with -icount, the guest clock) stands still until the host answers: the guest's timeline no
+longer depends on how fast the host is, which is what makes in-guest times repeat bit for bit.
+
+Exits with QEMU's exit status; SIGTERM and SIGINT are passed on to QEMU. When the host closes the
+TCP connection the guest reads end-of-file; when QEMU exits the host sees the connection close.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+TO_GUEST, FROM_GUEST = "to-guest", "from-guest"
+
+
+def make_fifos(directory: Path) -> None:
+    directory.mkdir(parents=True, exist_ok=True)
+    for name in (TO_GUEST, FROM_GUEST):
+        path = directory / name
+        if path.exists():
+            path.unlink()
+        os.mkfifo(path, 0o600)
+
+
+def _open_writer(path: Path, alive) -> int | None:
+    """Opens a FIFO for writing once its reader (the guest) has opened it; None if QEMU died first."""
+    while alive():
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_NONBLOCK)
+        except OSError:  # ENXIO: no reader yet
+            time.sleep(0.02)
+            continue
+        os.set_blocking(fd, True)
+        return fd
+    return None
+
+
+def bridge(directory: Path, host: str, port: int, alive, log=lambda text: None) -> None:
+    """Joins the FIFOs in `directory` to TCP host:port until either side closes."""
+    to_guest = _open_writer(directory / TO_GUEST, alive)
+    if to_guest is None:
+        return
+    from_guest = os.open(directory / FROM_GUEST, os.O_RDONLY)  # the guest opens it right after
+    try:
+        sock = socket.create_connection((host, port), timeout=10)
+    except OSError as exc:
+        log(f"semihosting link: cannot connect to {host}:{port}: {exc}")
+        os.close(to_guest)  # the guest reads end-of-file: its link is lost
+        os.close(from_guest)
+        return
+    sock.settimeout(None)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def guest_to_host():
+        try:
+            while data := os.read(from_guest, 65536):
+                sock.sendall(data)
+        except OSError:
+            pass
+        try:
+            sock.shutdown(socket.SHUT_WR)
+        except OSError:
+            pass
+
+    up = threading.Thread(target=guest_to_host, daemon=True)
+    up.start()
+    try:
+        while data := sock.recv(65536):
+            os.write(to_guest, data)
+    except OSError:
+        pass
+    os.close(to_guest)
+    up.join(timeout=1.0)
+
+
+def flight_command(launch, link_dir: Path):
+    """A `flight_command` for host_sim.pil.run_pil: the flight arguments it is given (with
+    --connect tcp/127.0.0.1:PORT) become the guest's (--connect semihosting/LINK_DIR --untimed-link),
+    `launch(guest_args)` gives the QEMU system-mode command (with semihosting on), and the result
+    is this bridge around it."""
+    local = "tcp/127.0.0.1:"
+    link_dir = Path(link_dir).resolve()  # the guest hands it to the host's open(), whose cwd is QEMU's
+
+    def command(args):
+        ports = [a[len(local):] for a in args if a.startswith(local)]
+        if len(ports) != 1:
+            raise ValueError(f"expected one --connect {local}PORT in {args}")
+        guest = [f"semihosting/{link_dir}" if a.startswith(local) else a for a in args] + ["--untimed-link"]
+        return [sys.executable, "-m", "qemu.semihosting_link", "--connect", f"127.0.0.1:{ports[0]}",
+                "--dir", str(link_dir), "--", *launch(guest)]
+
+    return command
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m qemu.semihosting_link", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--connect", required=True, help="the host's TCP endpoint, HOST:PORT")
+    ap.add_argument("--dir", required=True, help="directory for the two FIFOs (created)")
+    ap.add_argument("qemu", nargs=argparse.REMAINDER, help="-- then the QEMU command")
+    a = ap.parse_args(argv)
+    command = a.qemu[1:] if a.qemu[:1] == ["--"] else a.qemu
+    if not command:
+        ap.error("no QEMU command after --")
+    host, _, port = a.connect.rpartition(":")
+    directory = Path(a.dir)
+    make_fifos(directory)
+    qemu = subprocess.Popen(command)
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda s, f: qemu.send_signal(s))
+    threading.Thread(target=bridge, args=(directory, host, int(port), lambda: qemu.poll() is None,
+                                          lambda t: print(t, file=sys.stderr, flush=True)), daemon=True).start()
+    rc = qemu.wait()
+    return rc if rc >= 0 else 128 - rc
+
+
+if __name__ == "__main__":
+    sys.exit(main())

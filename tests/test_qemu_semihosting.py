@@ -1,0 +1,124 @@
+"""The semihosting link: the bridge between two host FIFOs and a TCP endpoint
+(qemu/semihosting_link.py), and Case 1 through it in QEMU system mode, where the guest clock stands
+still while the host computes, so that two runs give the same in-guest solve times at every step.
+
+The system-mode part needs the ARM kernels and busybox (downloads that belong to `make pil`):
+skipped until `python -m qemu prepare` has run, or set RVD_QEMU_FETCH=1 to let the test fetch them.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+
+import flight_sw
+from host_sim.pil import run_pil
+from host_sim.record import load_run
+from host_sim.server import ServerConfig
+from qemu import build, semihosting_link, system, targets
+
+pytestmark = pytest.mark.qemu
+
+
+@pytest.fixture
+def echo_server():
+    """Echoes what it receives until the test asks it to hang up."""
+    server = socket.create_server(("127.0.0.1", 0))
+    hang_up = threading.Event()
+
+    def serve():
+        conn, _ = server.accept()
+        with conn:
+            conn.settimeout(0.05)
+            while not hang_up.is_set():
+                try:
+                    data = conn.recv(4096)
+                except socket.timeout:
+                    continue
+                if not data:
+                    break
+                conn.sendall(data)
+
+    threading.Thread(target=serve, daemon=True).start()
+    yield server.getsockname()[1], hang_up
+    server.close()
+
+
+def test_bridge_joins_the_fifos_to_tcp_and_passes_end_of_file_on(tmp_path, echo_server):
+    port, hang_up = echo_server
+    semihosting_link.make_fifos(tmp_path)
+    bridge = threading.Thread(target=semihosting_link.bridge, args=(tmp_path, "127.0.0.1", port, lambda: True),
+                              daemon=True)
+    bridge.start()
+    # The guest's side, in the guest's order: to-guest for reading, then from-guest for writing.
+    to_guest = os.open(tmp_path / semihosting_link.TO_GUEST, os.O_RDONLY)
+    from_guest = os.open(tmp_path / semihosting_link.FROM_GUEST, os.O_WRONLY)
+    message = bytes(range(256)) * 40  # more than one pipe or TCP read
+    os.write(from_guest, message)
+    echoed = b""
+    while len(echoed) < len(message):
+        echoed += os.read(to_guest, 65536)
+    assert echoed == message
+    hang_up.set()  # the host closes the connection: the guest reads end-of-file
+    assert os.read(to_guest, 1) == b""
+    os.close(from_guest)
+    bridge.join(timeout=5)
+    assert not bridge.is_alive()
+    os.close(to_guest)
+
+
+def test_bridge_exits_with_the_emulator_and_its_status(tmp_path):
+    # The "emulator" never opens the FIFOs: the bridge must not wait for them after it is gone.
+    proc = subprocess.run([sys.executable, "-m", "qemu.semihosting_link", "--connect", "127.0.0.1:9",
+                           "--dir", str(tmp_path / "link"), "--", sys.executable, "-c", "raise SystemExit(3)"],
+                          timeout=30)
+    assert proc.returncode == 3
+    assert (tmp_path / "link" / semihosting_link.TO_GUEST).exists()
+    with pytest.raises(ValueError, match="one --connect"):
+        semihosting_link.flight_command(lambda a: ["qemu"], tmp_path)(["--connect", "tcp/10.0.2.2:7447"])
+
+
+def _system_target(name):
+    target = targets.load(name)
+    if not shutil.which(target.compiler) or not shutil.which(target.qemu_system):
+        pytest.skip(f"{target.compiler} or {target.qemu_system} missing: run tools/install-deps pil")
+    img = system.image(target, download=os.environ.get("RVD_QEMU_FETCH") == "1")
+    if img is None:
+        pytest.skip("system-mode image not built: run `python -m qemu prepare` (or set RVD_QEMU_FETCH=1)")
+    return target, img, build.cross_build(target).path
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["rpi3", "q7s"])
+def test_system_mode_in_guest_solve_times_repeat_bit_for_bit(tmp_path, name):
+    target, img, exe = _system_target(name)
+    initrd = system.program_initrd(img, exe, tmp_path / "initrd.cpio")
+    params = flight_sw.GuidanceParams()
+    case = flight_sw.dissertation_case(1)
+    ref = flight_sw.run_closed_loop(params, case["x0"], case["q_lvlh_body"], case["omega_body_rad_s"])
+    command = semihosting_link.flight_command(
+        lambda args: system.command(target, img, initrd, args, net=False, semihosting=True), tmp_path / "link")
+    runs = []
+    for rep in (1, 2):
+        summary, run_dir = run_pil("case1_vbar", truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True,
+                                   sim_options={"cw_mean_motion_rad_s": params.mean_motion_rad_s()},
+                                   config=ServerConfig(delay_model="none", run_id="semihosting-check",
+                                                       zenoh_id="72766470696c"),
+                                   run_dir=tmp_path / f"run{rep}", flight_command=command,
+                                   flight_args=["--pmu-instructions"])
+        assert summary.end == "docked", summary.end
+        # the same closed loop as in process: the link changes nothing but the timing
+        assert summary.steps == ref.steps
+        assert summary.dv_total_mps == pytest.approx(ref.total["dv_mps"], abs=1e-6)
+        runs.append(load_run(run_dir)[1])
+    a, b = (r["solve_time_us"].to_numpy() for r in runs)
+    assert len(a) == len(b) == ref.steps
+    assert (a[:-1] > 0).all()  # every step but the docked one solved a QP on the guest clock
+    np.testing.assert_array_equal(a, b)  # bit for bit, not approximately
+    np.testing.assert_array_equal(runs[0]["instructions"].to_numpy(), runs[1]["instructions"].to_numpy())
