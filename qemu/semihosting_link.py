@@ -11,7 +11,9 @@ ordinary TCP client. A semihosting read blocks inside one guest instruction, so 
 longer depends on how fast the host is, which is what makes in-guest times repeat bit for bit.
 
 Exits with QEMU's exit status; SIGTERM and SIGINT are passed on to QEMU. When the host closes the
-TCP connection the guest reads end-of-file; when QEMU exits the host sees the connection close.
+TCP connection (or cannot be reached) the guest reads end-of-file, and QEMU gets --grace-s seconds
+to power off before the bridge stops it: a guest cannot reconnect through this link, and a host
+that died must not leave an emulator behind. When QEMU exits the host sees the connection close.
 """
 from __future__ import annotations
 
@@ -111,6 +113,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m qemu.semihosting_link", description=__doc__.split("\n\n")[0])
     ap.add_argument("--connect", required=True, help="the host's TCP endpoint, HOST:PORT")
     ap.add_argument("--dir", required=True, help="directory for the two FIFOs (created)")
+    ap.add_argument("--grace-s", type=float, default=10.0,
+                    help="after the host's side closed, seconds QEMU gets to power off (default 10)")
     ap.add_argument("qemu", nargs=argparse.REMAINDER, help="-- then the QEMU command")
     a = ap.parse_args(argv)
     command = a.qemu[1:] if a.qemu[:1] == ["--"] else a.qemu
@@ -122,9 +126,28 @@ def main(argv=None) -> int:
     qemu = subprocess.Popen(command)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda s, f: qemu.send_signal(s))
-    threading.Thread(target=bridge, args=(directory, host, int(port), lambda: qemu.poll() is None,
-                                          lambda t: print(t, file=sys.stderr, flush=True)), daemon=True).start()
-    rc = qemu.wait()
+    link = threading.Thread(target=bridge, args=(directory, host, int(port), lambda: qemu.poll() is None,
+                                                 lambda t: print(t, file=sys.stderr, flush=True)), daemon=True)
+    link.start()
+    closed_at = None
+    while True:
+        try:
+            rc = qemu.wait(timeout=0.1)
+            break
+        except subprocess.TimeoutExpired:
+            pass
+        if closed_at is None and not link.is_alive():
+            closed_at = time.monotonic()
+        if closed_at is not None and time.monotonic() - closed_at > a.grace_s:
+            print(f"semihosting link: the host's side closed and QEMU did not exit within {a.grace_s:g} s: "
+                  "stopping it", file=sys.stderr, flush=True)
+            qemu.terminate()
+            try:
+                rc = qemu.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                qemu.kill()
+                rc = qemu.wait()
+            break
     return rc if rc >= 0 else 128 - rc
 
 

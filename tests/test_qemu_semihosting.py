@@ -84,6 +84,23 @@ def test_bridge_exits_with_the_emulator_and_its_status(tmp_path):
         semihosting_link.flight_command(lambda a: ["qemu"], tmp_path)(["--connect", "tcp/10.0.2.2:7447"])
 
 
+def test_bridge_stops_an_emulator_that_outlives_the_host(tmp_path):
+    """The host accepts and hangs up at once (as a host that died would): the "emulator" (a child
+    that opens the FIFOs like a guest, then never exits by itself) is stopped after the grace time."""
+    server = socket.create_server(("127.0.0.1", 0))
+    threading.Thread(target=lambda: server.accept()[0].close(), daemon=True).start()
+    link = tmp_path / "link"
+    guest = ("import os, time, sys; d = sys.argv[1]; "
+             "r = os.open(d + '/to-guest', os.O_RDONLY); w = os.open(d + '/from-guest', os.O_WRONLY); "
+             "assert os.read(r, 1) == b''; time.sleep(120)")
+    proc = subprocess.run([sys.executable, "-m", "qemu.semihosting_link", "--connect",
+                           f"127.0.0.1:{server.getsockname()[1]}", "--dir", str(link), "--grace-s", "0.5", "--",
+                           sys.executable, "-c", guest, str(link)], capture_output=True, text=True, timeout=60)
+    server.close()
+    assert proc.returncode == 128 + 15, proc.stderr  # terminated by the bridge
+    assert "did not exit within 0.5 s" in proc.stderr
+
+
 def _system_target(name):
     target = targets.load(name)
     if not shutil.which(target.compiler) or not shutil.which(target.qemu_system):
