@@ -208,7 +208,6 @@ class Campaign:
         clock stands still while the host computes, so two runs give the same in-guest times."""
         from qemu import semihosting_link
 
-        # One FIFO directory for both runs: its path is on the guest's kernel command line.
         flight_command = semihosting_link.flight_command(launch, run_dir.parent / "semihosting-link")
         # Everything the guest receives is the same byte for byte in both runs: the run id (in the
         # keys and on the kernel command line) and the host's ZenohID (Zenoh derives the initial

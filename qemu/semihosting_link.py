@@ -3,9 +3,11 @@ joined to the host simulator's TCP endpoint.
 
     python -m qemu.semihosting_link --connect 127.0.0.1:7447 --dir /tmp/rvd-link -- qemu-system-... 
 
-The guest (flight_sw with --connect semihosting/DIR --untimed-link) opens DIR/to-guest for reading
-and DIR/from-guest for writing through semihosting calls. This bridge opens their other ends,
-then connects to the host's TCP endpoint and copies bytes both ways, so the host's Zenoh sees an
+QEMU runs in DIR. The guest (flight_sw with --connect semihosting/. --untimed-link) opens
+to-guest for reading and from-guest for writing there through semihosting calls, by paths relative
+to QEMU's working directory: the guest's command line, and with it everything the guest does, is
+the same wherever the FIFOs are (so the QEMU command must use absolute paths). This bridge opens
+their other ends, then connects to the host's TCP endpoint and copies bytes both ways, so the host's Zenoh sees an
 ordinary TCP client. A semihosting read blocks inside one guest instruction, so the emulated CPU
 (and, with -icount, the guest clock) stands still until the host answers: the guest's timeline no
 longer depends on how fast the host is, which is what makes in-guest times repeat bit for bit.
@@ -92,17 +94,17 @@ def bridge(directory: Path, host: str, port: int, alive, log=lambda text: None) 
 
 def flight_command(launch, link_dir: Path):
     """A `flight_command` for host_sim.pil.run_pil: the flight arguments it is given (with
-    --connect tcp/127.0.0.1:PORT) become the guest's (--connect semihosting/LINK_DIR --untimed-link),
+    --connect tcp/127.0.0.1:PORT) become the guest's (--connect semihosting/. --untimed-link),
     `launch(guest_args)` gives the QEMU system-mode command (with semihosting on), and the result
     is this bridge around it."""
     local = "tcp/127.0.0.1:"
-    link_dir = Path(link_dir).resolve()  # the guest hands it to the host's open(), whose cwd is QEMU's
+    link_dir = Path(link_dir).resolve()
 
     def command(args):
         ports = [a[len(local):] for a in args if a.startswith(local)]
         if len(ports) != 1:
             raise ValueError(f"expected one --connect {local}PORT in {args}")
-        guest = [f"semihosting/{link_dir}" if a.startswith(local) else a for a in args] + ["--untimed-link"]
+        guest = ["semihosting/." if a.startswith(local) else a for a in args] + ["--untimed-link"]
         return [sys.executable, "-m", "qemu.semihosting_link", "--connect", f"127.0.0.1:{ports[0]}",
                 "--dir", str(link_dir), "--", *launch(guest)]
 
@@ -123,7 +125,7 @@ def main(argv=None) -> int:
     host, _, port = a.connect.rpartition(":")
     directory = Path(a.dir)
     make_fifos(directory)
-    qemu = subprocess.Popen(command)
+    qemu = subprocess.Popen(command, cwd=directory)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda s, f: qemu.send_signal(s))
     link = threading.Thread(target=bridge, args=(directory, host, int(port), lambda: qemu.poll() is None,

@@ -235,10 +235,10 @@ def command(target: Target, img: Image, initrd: Path, args: Sequence[str] = (), 
     machine = ",".join([s.machine, *s.machine_options])
     cmd = [target.qemu_system, "-M", machine, "-cpu", target.qemu_cpu, "-m", memory or s.memory, "-smp", "1",
            "-display", "none", "-monitor", "none", "-serial", "stdio", "-no-reboot", "-nic", "none",
-           "-kernel", str(img.kernel), "-initrd", str(initrd),
+           "-kernel", str(Path(img.kernel).resolve()), "-initrd", str(Path(initrd).resolve()),
            "-append", kernel_command_line(target, args)]
     if img.dtb:
-        cmd += ["-dtb", str(img.dtb)]
+        cmd += ["-dtb", str(Path(img.dtb).resolve())]
     if net:
         cmd += ["-netdev", "user,id=n0", "-device", "virtio-net-device,netdev=n0"]
     if semihosting:

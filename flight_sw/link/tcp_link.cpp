@@ -73,8 +73,7 @@ const char* parse_tcp_endpoint(std::string_view text, TcpEndpoint& out) {
   constexpr std::string_view kSemihosting = "semihosting/";
   if (text.substr(0, kSemihosting.size()) == kSemihosting) {
     text.remove_prefix(kSemihosting.size());
-    if (text.empty() || text.front() != '/')
-      return "semihosting endpoint must name an absolute host directory: semihosting//tmp/...";
+    if (text.empty()) return "semihosting endpoint must name a host directory: semihosting/DIR";
     out = TcpEndpoint{};
     out.semihosting_dir.assign(text);
     return nullptr;

@@ -39,7 +39,8 @@ struct TcpEndpoint {
   std::string semihosting_dir;  // semihosting/<dir>: the stream runs through host FIFOs instead
 };
 // Parses "tcp/<host>:<port>" ("tcp/[::1]:7447" for IPv6) or "semihosting/<host dir>"
-// ("semihosting//tmp/rvd-link"). nullptr when valid, else why not.
+// ("semihosting//tmp/rvd-link"; a relative one is relative to the emulator's working directory).
+// nullptr when valid, else why not.
 const char* parse_tcp_endpoint(std::string_view text, TcpEndpoint& out);
 
 class TcpLink {
