@@ -22,6 +22,9 @@ rounds (every row once per round, so a burst of load on the shared machine hits 
   qemu-system rpi3  the same aarch64 build in a Debian arm64 guest (-M virt, -icount, user
                     networking: the guest reaches the host at tcp/10.0.2.2:PORT); runs when the
                     system image is already prepared, or with --system (downloads it)
+  qemu-system rpi3 semihosting
+                    the same guest with the link through semihosting and host FIFOs
+                    (qemu/semihosting_link.py, as the campaign's bit-exact timing runs use it)
 
 Clock: every figure is host time, Python time.monotonic() (CLOCK_MONOTONIC), read in the host
 server just before nav k is put and again when cmd k has been taken out of the host's inbox
@@ -314,12 +317,13 @@ def _user_row(name: str, steps: int) -> FlightRow:
     return FlightRow(f"qemu-user {name}", "qemu-user", name, f"{t.qemu_user} -cpu {t.qemu_cpu}", steps, prepare)
 
 
-def _system_row(name: str, steps: int, download: bool, icount: bool, workdir: Path) -> FlightRow:
-    from qemu import system, targets
+def _system_row(name: str, steps: int, download: bool, icount: bool, workdir: Path,
+                semihosting: bool = False) -> FlightRow:
+    from qemu import semihosting_link, system, targets
 
     t = targets.load(name)
-    emulator = (f"{t.qemu_system} -M {t.system.machine} -cpu {t.qemu_cpu}, user net"
-                f"{', -icount shift=0' if icount else ''}")
+    emulator = (f"{t.qemu_system} -M {t.system.machine} -cpu {t.qemu_cpu}, "
+                f"{'semihosting link' if semihosting else 'user net'}{', -icount shift=0' if icount else ''}")
 
     def prepare():
         if not shutil.which(t.qemu_system):
@@ -333,6 +337,10 @@ def _system_row(name: str, steps: int, download: bool, icount: bool, workdir: Pa
                                  "to download it)")
         _, exe = _cross_exe(name)
         initrd = system.program_initrd(img, exe.path, workdir / f"{name}-initrd.cpio")
+        if semihosting:
+            return {"flight_command": semihosting_link.flight_command(
+                lambda args: system.command(t, img, initrd, args, icount=icount, net=False, semihosting=True),
+                workdir / f"{name}-semihosting-link")}
 
         def flight_command(args):
             # run_pil passes --connect tcp/127.0.0.1:PORT; inside the guest the host is 10.0.2.2.
@@ -342,7 +350,8 @@ def _system_row(name: str, steps: int, download: bool, icount: bool, workdir: Pa
         return {"flight_command": flight_command}
 
     # A boot takes seconds (vexpress-a9 up to 15 s on a loaded machine): generous hello timeout.
-    return FlightRow(f"qemu-system {name}", "qemu-system", name, emulator, steps, prepare, hello_timeout_s=180.0)
+    label = f"qemu-system {name}{' semihosting' if semihosting else ''}"
+    return FlightRow(label, "qemu-system", name, emulator, steps, prepare, hello_timeout_s=180.0)
 
 
 def _per_round(total: int, rounds: int, warmup: int) -> int:
@@ -380,7 +389,7 @@ def flight_section(rows: list[FlightRow], *, rounds: int, warmup: int, host_mode
             row.hello = res["flight_hello"]
             row.first_ms.append(res["round_trip_ms"][0])
             row.samples.extend(res["round_trip_ms"][warmup:])
-            print(f"  round {rnd + 1}/{rounds} {row.key:<18} {n} steps, median "
+            print(f"  round {rnd + 1}/{rounds} {row.key:<30} {n} steps, median "
                   f"{statistics.median(res['round_trip_ms'][warmup:]):.3f} ms, {res['wall_s']:.1f} s wall", flush=True)
 
     measured = [r for r in rows if r.skipped is None and r.samples]
@@ -402,16 +411,16 @@ def flight_section(rows: list[FlightRow], *, rounds: int, warmup: int, host_mode
     print(f"\nFlight software nav -> cmd round trip, trivial guidance (rvd_flight_sw --trivial): lockstep, CW truth, "
           f"no noise, host Zenoh {host_mode} mode; {rounds} round(s), first {warmup} steps of each run left out")
     print(f"clock: {CLOCK}")
-    head = f"{'row':<18}{'flight CPU':<22}{'steps':>6}{'median':>9}{'p90':>9}{'p99':>9}{'max':>9}{'cold':>9}   x native (median / p99)"
+    head = f"{'row':<30}{'flight CPU':<22}{'steps':>6}{'median':>9}{'p90':>9}{'p99':>9}{'max':>9}{'cold':>9}   x native (median / p99)"
     print(head + "\n" + "-" * len(head))
     for e in table:
         if "stats" not in e:
-            print(f"{e['key']:<18}skipped: {(e['skipped'] or 'no data').splitlines()[0]}")
+            print(f"{e['key']:<30}skipped: {(e['skipped'] or 'no data').splitlines()[0]}")
             continue
         st, ratio = e["stats"], e["ratio_to_native"]
         cpu = f"{e['flight_arch']} {e['flight_cpu_model']}"
         ratio_s = f"x{ratio['median_ms']:.2f} / x{ratio['p99_ms']:.2f}" if ratio else "-"
-        print(f"{e['key']:<18}{cpu:<22}{st['n']:>6}{st['median_ms']:>9.3f}{st['p90_ms']:>9.3f}{st['p99_ms']:>9.3f}"
+        print(f"{e['key']:<30}{cpu:<22}{st['n']:>6}{st['median_ms']:>9.3f}{st['p90_ms']:>9.3f}{st['p99_ms']:>9.3f}"
               f"{st['max_ms']:>9.3f}{max(e['first_step_ms']):>9.3f}   {ratio_s}")
     print("[ms]; cold = the first step of a run (worst over rounds), not in the statistics")
     for e in table:
@@ -440,8 +449,9 @@ def build_rows(args, workdir: Path) -> list[FlightRow]:
             continue
         rows.append(_user_row(name, args.emulated_steps))
     if not args.no_system:
-        rows.append(_system_row(SYSTEM_TARGET, args.emulated_steps, download=args.system,
-                                icount=args.icount == "on", workdir=workdir))
+        for semihosting in (False, True):
+            rows.append(_system_row(SYSTEM_TARGET, args.emulated_steps, download=args.system,
+                                    icount=args.icount == "on", workdir=workdir, semihosting=semihosting))
     return rows
 
 

@@ -30,6 +30,9 @@ import time
 from pathlib import Path
 
 TO_GUEST, FROM_GUEST = "to-guest", "from-guest"
+# A fixed ZenohID for the host session of runs that must repeat bit for bit ("rvdpil"): Zenoh derives
+# the initial sequence numbers, which travel in every frame, from the two sessions' ZenohIDs.
+HOST_ZENOH_ID = "72766470696c"
 
 
 def make_fifos(directory: Path) -> None:

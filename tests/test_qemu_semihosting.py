@@ -126,7 +126,7 @@ def test_system_mode_in_guest_solve_times_repeat_bit_for_bit(tmp_path, name):
         summary, run_dir = run_pil("case1_vbar", truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True,
                                    sim_options={"cw_mean_motion_rad_s": params.mean_motion_rad_s()},
                                    config=ServerConfig(delay_model="none", run_id="semihosting-check",
-                                                       zenoh_id="72766470696c"),
+                                                       zenoh_id=semihosting_link.HOST_ZENOH_ID, zenoh_lease_ms=60000),
                                    run_dir=tmp_path / f"run{rep}", flight_command=command,
                                    flight_args=["--pmu-instructions"])
         assert summary.end == "docked", summary.end
