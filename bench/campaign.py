@@ -140,7 +140,7 @@ class Campaign:
         lib = plugin.build(download=True)
         tdir = self.runs_dir / t.build_name
         tdir.mkdir(parents=True, exist_ok=True)
-        base = {"target": t.name, "cpu": t.cpu, "arch": t.arch, "clock_hz": t.clock_hz,
+        base = {"target": t.name, "build": t.build_name, "cpu": t.cpu, "arch": t.arch, "clock_hz": t.clock_hz,
                 "cpi": asdict(t.cpi), "exe_size_bytes": exe.size_bytes, "exe_sha": _sha(exe.path)}
         fp_base = json.dumps([base, spec.truth, spec.noise, spec.seed], sort_keys=True)
 

@@ -43,6 +43,8 @@ def load_campaign(out: Path) -> tuple[list[dict], pd.DataFrame]:
         run_dir = meta_path.parent
         meta, steps = load_run(run_dir)
         meta["dir"] = str(run_dir.relative_to(out))
+        # A CPU override is a build of its own (e.g. q7s-cortex-a8): report it apart, never mixed.
+        meta["target"] = meta.get("build") or meta.get("target")
         metas.append(meta)
         steps = steps.copy()
         steps["run"] = meta["dir"]
