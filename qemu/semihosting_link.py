@@ -57,6 +57,27 @@ def _open_writer(path: Path, alive) -> int | None:
     return None
 
 
+def _batches(sock: socket.socket):
+    """The TCP stream cut into Zenoh batches (u16 little-endian length, then the batch), each with
+    its prefix; at the end, whatever incomplete rest there is. Whole batches go to the guest in one
+    write each, so the guest's reads do not depend on how the host's bytes were split or queued."""
+    buf = b""
+    while data := sock.recv(65536):
+        buf += data
+        while len(buf) >= 2 and len(buf) >= 2 + int.from_bytes(buf[:2], "little"):
+            end = 2 + int.from_bytes(buf[:2], "little")
+            yield buf[:end]
+            buf = buf[end:]
+    if buf:
+        yield buf
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+
+
 def bridge(directory: Path, host: str, port: int, alive, log=lambda text: None) -> None:
     """Joins the FIFOs in `directory` to TCP host:port until either side closes."""
     to_guest = _open_writer(directory / TO_GUEST, alive)
@@ -87,8 +108,8 @@ def bridge(directory: Path, host: str, port: int, alive, log=lambda text: None) 
     up = threading.Thread(target=guest_to_host, daemon=True)
     up.start()
     try:
-        while data := sock.recv(65536):
-            os.write(to_guest, data)
+        for batch in _batches(sock):
+            _write_all(to_guest, batch)
     except OSError:
         pass
     os.close(to_guest)

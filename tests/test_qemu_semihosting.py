@@ -59,7 +59,8 @@ def test_bridge_joins_the_fifos_to_tcp_and_passes_end_of_file_on(tmp_path, echo_
     # The guest's side, in the guest's order: to-guest for reading, then from-guest for writing.
     to_guest = os.open(tmp_path / semihosting_link.TO_GUEST, os.O_RDONLY)
     from_guest = os.open(tmp_path / semihosting_link.FROM_GUEST, os.O_WRONLY)
-    message = bytes(range(256)) * 40  # more than one pipe or TCP read
+    # Zenoh batches (u16 little-endian length, then the batch), more than one pipe or TCP read's worth
+    message = b"".join(len(b).to_bytes(2, "little") + b for b in (bytes([i]) * (7 * i + 1) for i in range(200)))
     os.write(from_guest, message)
     echoed = b""
     while len(echoed) < len(message):
@@ -71,6 +72,17 @@ def test_bridge_joins_the_fifos_to_tcp_and_passes_end_of_file_on(tmp_path, echo_
     bridge.join(timeout=5)
     assert not bridge.is_alive()
     os.close(to_guest)
+
+
+def test_bridge_hands_the_guest_whole_batches_however_tcp_splits_them():
+    host, bridge_end = socket.socketpair()
+    batches = [len(b).to_bytes(2, "little") + b for b in (b"nav", b"", bytes(range(256)) * 3, b"cmd")]
+    stream = b"".join(batches) + b"\x05\x00ab"  # and an incomplete one at the end
+    for i in range(0, len(stream), 5):  # in 5-byte pieces
+        host.sendall(stream[i:i + 5])
+    host.close()
+    assert list(semihosting_link._batches(bridge_end)) == batches + [b"\x05\x00ab"]
+    bridge_end.close()
 
 
 def test_bridge_exits_with_the_emulator_and_its_status(tmp_path):

@@ -252,10 +252,18 @@ LinkStatus TcpLink::receive_batch(const uint8_t*& data, size_t& size, int timeou
       rx_begin_ = 0;
       rx_end_ = have;
     }
-    if (semihosting_rx_ >= 0 && timeout_ms == 0) return LinkStatus::Timeout;  // a read would block
-    const ssize_t n = semihosting_rx_ >= 0
-                          ? semihosting::read(semihosting_rx_, rx_.data() + rx_end_, rx_.size() - rx_end_)
-                          : ::recv(fd_, rx_.data() + rx_end_, rx_.size() - rx_end_, 0);
+    ssize_t n = 0;
+    if (semihosting_rx_ >= 0) {
+      if (timeout_ms == 0) return LinkStatus::Timeout;  // a read would block
+      // Exactly the rest of this batch's prefix or body: how many batches the host has queued
+      // must not change what the guest does (the bridge writes whole batches).
+      const size_t want = have < kPrefixSize
+                              ? kPrefixSize - have
+                              : kPrefixSize + (rx_[0] | (static_cast<size_t>(rx_[1]) << 8)) - have;
+      n = semihosting::read(semihosting_rx_, rx_.data() + rx_end_, want);
+    } else {
+      n = ::recv(fd_, rx_.data() + rx_end_, rx_.size() - rx_end_, 0);
+    }
     if (n > 0) {
       rx_end_ += static_cast<size_t>(n);
       continue;
