@@ -29,3 +29,4 @@ def flight_exe() -> Path:
         return find_flight_executable()
     except FileNotFoundError as exc:
         pytest.fail(str(exc))
+

@@ -8,7 +8,6 @@ skipped until `python -m qemu prepare` has run, or set RVD_QEMU_FETCH=1 to let t
 from __future__ import annotations
 
 import os
-import shutil
 import socket
 import subprocess
 import sys
@@ -21,7 +20,8 @@ import flight_sw
 from host_sim.pil import run_pil
 from host_sim.record import load_run
 from host_sim.server import ServerConfig
-from qemu import build, semihosting_link, system, targets
+from qemu import build, semihosting_link, system
+from system_mode import system_mode_or_skip
 
 pytestmark = pytest.mark.qemu
 
@@ -113,20 +113,11 @@ def test_bridge_stops_an_emulator_that_outlives_the_host(tmp_path):
     assert "did not exit within 0.5 s" in proc.stderr
 
 
-def _system_target(name):
-    target = targets.load(name)
-    if not shutil.which(target.compiler) or not shutil.which(target.qemu_system):
-        pytest.skip(f"{target.compiler} or {target.qemu_system} missing: run tools/install-deps pil")
-    img = system.image(target, download=os.environ.get("RVD_QEMU_FETCH") == "1")
-    if img is None:
-        pytest.skip("system-mode image not built: run `python -m qemu prepare` (or set RVD_QEMU_FETCH=1)")
-    return target, img, build.cross_build(target).path
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["rpi3", "q7s"])
 def test_system_mode_in_guest_solve_times_repeat_bit_for_bit(tmp_path, name):
-    target, img, exe = _system_target(name)
+    target, img = system_mode_or_skip(name)
+    exe = build.cross_build(target).path
     initrd = system.program_initrd(img, exe, tmp_path / "initrd.cpio")
     params = flight_sw.GuidanceParams()
     case = flight_sw.dissertation_case(1)

@@ -11,15 +11,14 @@ Needs the ARM kernels and busybox (downloads that belong to `make pil`): skipped
 """
 from __future__ import annotations
 
-import os
 import re
-import shutil
 import socket
 import threading
 
 import pytest
 
 from qemu import build, system, targets
+from system_mode import system_mode_or_skip
 
 pytestmark = [pytest.mark.qemu, pytest.mark.slow]
 
@@ -53,12 +52,7 @@ def echo_server():
 
 @pytest.fixture(scope="module", params=["rpi3", "q7s"])
 def booted(request):
-    target = targets.load(request.param)
-    if not shutil.which(target.compiler) or not shutil.which(target.qemu_system):
-        pytest.skip(f"{target.compiler} or {target.qemu_system} missing: run tools/install-deps pil")
-    img = system.image(target, download=os.environ.get("RVD_QEMU_FETCH") == "1")
-    if img is None:
-        pytest.skip("system-mode image not built: run `python -m qemu prepare` (or set RVD_QEMU_FETCH=1)")
+    target, img = system_mode_or_skip(request.param)
     return target, img, build.cross_build(target, "qemu_probe").path
 
 

@@ -1,16 +1,11 @@
 """flight_sw's Fast MPC solver from Python, against ProxSuite and against constructions whose answer
 is known (reachability LPs, barrier theory). QPs are MPC-like: CW dynamics, nx = 6, 3 thrust inputs
 plus slack inputs, box and halfspace rows, horizons 5..45."""
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/ helpers from the repo root
-
-import flight_sw  # noqa: E402
-from bench.qp_forms import (  # noqa: E402
+import flight_sw
+from bench.qp_forms import (
     PHASES, OcpQpData, approach_qp, docking_qp, load_qp_set, random_mpc_qp, rendezvous_qp, save_qp_set,
     solve_proxsuite, with_reach_row)
 

@@ -534,8 +534,7 @@ bool factorize_regularised(Work& w, const OcpQp& qp) {
 }
 
 // Gz of the step; stage 0's x is fixed, so its C block does not move.
-void step_rows(Work& w, const OcpQp& qp, int i, Vector& out) {
-  (void)qp;
+void step_rows(Work& w, int i, Vector& out) {
   g_mul(w, i, w.du[i], w.dx[i], out);  // dx[0] = 0: x0 is fixed
 }
 
@@ -571,9 +570,9 @@ double step_error(Work& w, const OcpQp& qp) {
 }
 
 // Slack and dual steps from the primal step: ds = -rin - G dz, dlam = (-rc - lam ds) / s.
-void slack_dual_step(Work& w, const OcpQp& qp) {
+void slack_dual_step(Work& w) {
   for (int i = 0; i <= w.N; ++i) {
-    step_rows(w, qp, i, w.ds[i]);
+    step_rows(w, i, w.ds[i]);
     w.ds[i] = (-w.rin[i] - w.ds[i]).cwiseProduct(w.act[i]);
     w.dlam[i] = ((-w.rc[i].array() - w.lam[i].array() * w.ds[i].array()) / w.s[i].array()).matrix();
   }
@@ -867,7 +866,7 @@ Status FastMpcSolver::solve_converged(Work& w, const OcpQp& qp, bool warm, int m
         gt_mul_add(w, i, w.vrow[i], w.gu[i], i > 0 ? &w.gx[i] : nullptr);
       }
       solve_step(w, qp, w.rdyn, w.dx, w.du, w.dpi);
-      slack_dual_step(w, qp);
+      slack_dual_step(w);
       // Iterative refinement: the same factorisation, the residual of the unreduced system.
       for (int ref = 0; refine && ref < kMaxRefinements && step_error(w, qp) > kRefineBelow * tol; ++ref) {
         solve_step(w, qp, w.edyn, w.cx, w.cu, w.cpi);
@@ -876,7 +875,7 @@ Status FastMpcSolver::solve_converged(Work& w, const OcpQp& qp, bool warm, int m
           w.du[i] += w.cu[i];
           if (i < N) w.dpi[i] += w.cpi[i];
         }
-        slack_dual_step(w, qp);
+        slack_dual_step(w);
       }
       double amax = kInf;  // largest step keeping s, lam >= 0 (unbounded when nothing blocks)
       for (int i = 0; i <= N; ++i) {
@@ -1044,9 +1043,13 @@ Status FastMpcSolver::solve_barrier(const OcpQp& qp, bool warm) {
 #ifdef RVD_SOLVER_TRACE
   std::fprintf(stderr, "barrier warm=%d inside=%d\n", warm, inside);
 #endif
+  // gz, s, lam and the residuals at the current iterate; returns the residual norm.
+  auto evaluate_iterate = [&] {
+    strictly_inside(w.x, w.u);
+    return evaluate(w.x, w.u, w.pi);
+  };
 
-  strictly_inside(w.x, w.u);
-  double rnorm = evaluate(w.x, w.u, w.pi);
+  double rnorm = evaluate_iterate();
   Status st = Status::MaxIter;
   for (int newton = 0;; ++newton) {
     const double pres = dyn_res(w);
@@ -1090,12 +1093,13 @@ Status FastMpcSolver::solve_barrier(const OcpQp& qp, bool warm) {
     // step that lands next to the boundary costs many Newton steps to get away from it again).
     double t = 1.0;
     for (int i = 0; i <= N; ++i) {
-      step_rows(w, qp, i, w.ds[i]);  // G dz: the slacks d - Gz change by -G dz
+      step_rows(w, i, w.ds[i]);  // G dz: the slacks d - Gz change by -G dz
       for (int j = 0; j < w.nc[i]; ++j)
         if (w.act[i](j) > 0.0 && w.ds[i](j) > 0.0) t = std::min(t, kNewtonToBoundary * w.s[i](j) / w.ds[i](j));
     }
     bool moved = false;
-    for (int h = 0; h < kLsMaxHalvings && !moved; ++h, t *= kLsBeta) {
+    double r_trial = rnorm;
+    for (int h = 0; h < kLsMaxHalvings; ++h, t *= kLsBeta) {
       for (int i = 0; i <= N; ++i) {
         w.xt[i] = w.x[i] + t * w.dx[i];
         w.ut[i] = w.u[i] + t * w.du[i];
@@ -1105,8 +1109,8 @@ Status FastMpcSolver::solve_barrier(const OcpQp& qp, bool warm) {
       if (on_dynamics) {
         moved = barrier_objective(w.xt, w.ut) <= phi + kLsAlpha * t * slope;
       } else {
-        const double rt = evaluate(w.xt, w.ut, w.pit);
-        moved = rt <= (1.0 - kLsAlpha * t) * rnorm;
+        r_trial = evaluate(w.xt, w.ut, w.pit);
+        moved = r_trial <= (1.0 - kLsAlpha * t) * rnorm;
       }
       if (moved) break;
     }
@@ -1121,8 +1125,7 @@ Status FastMpcSolver::solve_barrier(const OcpQp& qp, bool warm) {
         w.ut[i] = w.u[i];
         if (i < N) w.pit[i] = w.pi[i];
       }
-      strictly_inside(w.x, w.u);
-      evaluate(w.x, w.u, w.pi);
+      evaluate_iterate();  // the primal-dual start reads s and lam
       if (!central_path_start(true)) {
         if (st0 != Status::MaxIter && st0 != Status::TimeLimit) return st0;
         for (int i = 0; i <= N; ++i) {
@@ -1133,27 +1136,21 @@ Status FastMpcSolver::solve_barrier(const OcpQp& qp, bool warm) {
         st = st0;
         break;
       }
-      strictly_inside(w.x, w.u);
-      rnorm = evaluate(w.x, w.u, w.pi);
+      rnorm = evaluate_iterate();
       continue;
     }
-    if (!moved) {  // no decrease along the Newton direction: rounding level reached
-      strictly_inside(w.x, w.u);
-      rnorm = evaluate(w.x, w.u, w.pi);
-      break;
-    }
+    if (!moved) break;  // no decrease along the Newton direction: rounding level reached
     for (int i = 0; i <= N; ++i) {
       w.x[i].swap(w.xt[i]);
       w.u[i].swap(w.ut[i]);
       if (i < N) w.pi[i].swap(w.pit[i]);
     }
-    if (on_dynamics) strictly_inside(w.x, w.u);  // the residuals of the accepted point
-    rnorm = evaluate(w.x, w.u, w.pi);
+    // Off the dynamics the line search evaluated the accepted point already; on them only its
+    // merit (w.gz is the accepted point's: its strictly_inside() was the last).
+    rnorm = on_dynamics ? evaluate(w.x, w.u, w.pi) : r_trial;
   }
-  if (st == Status::MaxIter || st == Status::TimeLimit || st == Status::Solved) {
-    strictly_inside(w.x, w.u);  // leave gz, s, lam and the residuals consistent with the iterate
-    evaluate(w.x, w.u, w.pi);
-  }
+  // Leave gz, s, lam and the residuals consistent with the returned iterate.
+  if (st == Status::MaxIter || st == Status::TimeLimit || st == Status::Solved) evaluate_iterate();
   // Dynamics still violated at the cap: the plan is unusable, so find out whether any plan exists.
   if (st == Status::MaxIter && dyn_res(w) > tol * w.cons_scale && phase1_infeasible(qp)) st = Status::Infeasible;
   return st;

@@ -34,19 +34,11 @@ std::atomic<long> g_allocations{0};
 #define RVD_REAL(name) __libc_##name
 #endif
 extern "C" {
-#if RVD_STATIC_LINK
-void* __real_malloc(size_t);
-void* __real_calloc(size_t, size_t);
-void* __real_realloc(void*, size_t);
-void* __real_memalign(size_t, size_t);
-void __real_free(void*);
-#else
-void* __libc_malloc(size_t);
-void* __libc_calloc(size_t, size_t);
-void* __libc_realloc(void*, size_t);
-void* __libc_memalign(size_t, size_t);
-void __libc_free(void*);
-#endif
+void* RVD_REAL(malloc)(size_t);
+void* RVD_REAL(calloc)(size_t, size_t);
+void* RVD_REAL(realloc)(void*, size_t);
+void* RVD_REAL(memalign)(size_t, size_t);
+void RVD_REAL(free)(void*);
 
 void* RVD_C_ALLOC(malloc)(size_t n) {
   ++g_allocations;
