@@ -78,6 +78,22 @@ class Progress:
             print(file=sys.stderr)
 
 
+def _safety_line(safety: dict) -> str:
+    f = safety["figures"]
+    head = {"safe": "SAFE", "started_unsafe": "STARTED UNSAFE (the initial state violates a limit; the guidance "
+            "added no violation)"}.get(safety["verdict"], f"UNSAFE, {safety['violations']} violation(s)")
+    worst = [f"{name} by {st['worst']:.3g} {st['unit']} (step {st['worst_step']}, {st['worst_phase']})"
+             for name, st in safety["per_limit"].items() if st["violations"] or st["initial"]]
+    figures = []
+    if f.get("min_axial_distance_approach_m") is not None:
+        figures.append(f"closest axial distance in approach {f['min_axial_distance_approach_m']:.2f} m")
+    if f.get("max_docking_cone_excursion_m") is not None:
+        figures.append(f"docking-cone margin {-100 * f['max_docking_cone_excursion_m']:+.1f} cm")
+    if f.get("max_speed_inf_docking_mps"):
+        figures.append(f"max |v|inf in docking {1000 * f['max_speed_inf_docking_mps']:.1f} mm/s")
+    return "; ".join([head] + (["worst: " + ", ".join(worst)] if worst else []) + figures)
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     split = argv.index("--") if "--" in argv else len(argv)
@@ -111,6 +127,8 @@ def main(argv=None) -> int:
     print(f"scenario {args.scenario.name}: {summary.end} after {summary.steps} steps, "
           f"t = {summary.t_s:.0f} s, final distance to the port {summary.final_range_to_port_m:.3f} m")
     print(summary.table())
+    if summary.safety:
+        print(f"safety (truth): {_safety_line(summary.safety)}")
     if summary.hello is not None:
         h = summary.hello
         print(f"flight software: {h.arch} {h.cpu_model}, {h.compiler}; horizons {tuple(h.horizon)}")

@@ -162,3 +162,21 @@ class PairPropagator:
         if not sol.success:
             raise RuntimeError(f"pair propagation failed: {sol.message}")
         return sol.y.T if t_eval_s is not None else sol.y[:, -1]
+
+    def propagate_sampled(self, y0: np.ndarray, duration_s: float, sample_s, thrust_lvlh_mps2=None):
+        """(state after `duration_s`, states at the times `sample_s` relative to the start, len x 12).
+        The samples come from the integrator's dense output, so the end state is exactly what
+        propagate() gives: sampling does not change the trajectory."""
+        duration = float(duration_s)
+        y0 = np.asarray(y0, dtype=float)
+        thrust = None if thrust_lvlh_mps2 is None else np.asarray(thrust_lvlh_mps2, dtype=float)
+        if thrust is not None and not thrust.any():
+            thrust = None
+        sol = solve_ivp(lambda _t, y: self.derivative(y, thrust), (0.0, duration), y0, method="DOP853",
+                        dense_output=True, rtol=self.tol.rtol, atol=self._atol)
+        if not sol.success:
+            raise RuntimeError(f"pair propagation failed: {sol.message}")
+        end = sol.y[:, -1]
+        samples = sol.sol(np.asarray(sample_s, dtype=float)).T
+        samples[-1] = end if np.asarray(sample_s)[-1] == duration else samples[-1]
+        return end, samples

@@ -22,7 +22,7 @@ from typing import Callable, Optional, Sequence
 
 from host_sim.record import RunRecorder
 from host_sim.scenario import Scenario, load
-from host_sim.server import FLIGHT_COLUMNS, PilServer, RunSummary, ServerConfig, free_tcp_port
+from host_sim.server import FLIGHT_COLUMNS, SAFETY_COLUMNS, PilServer, RunSummary, ServerConfig, free_tcp_port
 from host_sim.simulator import Simulator
 
 REPO = Path(__file__).resolve().parent.parent
@@ -40,6 +40,17 @@ def find_flight_executable(explicit: Optional[str] = None) -> Path:
         f"no flight executable found (looked at --flight-sw, $RVD_FLIGHT_SW, {REPO / 'build/native/flight_sw'}, PATH); "
         "build it with `make build`"
     )
+
+
+def error_model_args(sim: Simulator) -> list[str]:
+    """Flight options telling the flight software the disturbances of this run: the sensor noise
+    (its navigation filter's measurement model), the thrust amplitude error's steady-state sigma and
+    whether burns are finite (its robustness margins). A switched-off model is reported as zero."""
+    sc = sim.scenario
+    sp, sv = (sc.sensors.sigma_position_m, sc.sensors.sigma_velocity_mps) if sim.sensor_noise else (0.0, 0.0)
+    sw = (sc.thrust_error.steady_state_covariance()[0, 0] ** 0.5 / 100.0) if sim.thrust_noise else 0.0
+    return ["--nav-sigma", f"{sp!r},{sv!r}", "--thrust-error-sigma", repr(float(sw)),
+            "--finite-burns", "off" if sim.impulsive else "on"]
 
 
 def default_run_dir(scenario_name: str, root: Path | str = "runs") -> Path:
@@ -96,7 +107,9 @@ def run_pil(
     cfg.endpoint = f"tcp/{host_address}:{port}"
     cfg.run_id = cfg.run_id if cfg.run_id != "run" else uuid.uuid4().hex[:12]
     # --verbose: the flight software notes its events (connects, rejected input, exit) in flight_sw.log.
-    args = ["--connect", flight_endpoint or cfg.endpoint, "--run", cfg.run_id, "--verbose", *flight_args]
+    # The error model the flight software's navigation filter and margins assume is the scenario's.
+    args = ["--connect", flight_endpoint or cfg.endpoint, "--run", cfg.run_id, "--verbose",
+            *error_model_args(sim), *flight_args]
     if flight_command is not None:
         cmd = list(flight_command(args))
     else:
@@ -108,7 +121,7 @@ def run_pil(
     record_meta.update(run_id=cfg.run_id, flight_command=cmd, truth=truth, lockstep=cfg.lockstep,
                        delay_model=cfg.delay_model, zenoh_mode=cfg.mode)
     record_meta.update(meta or {})
-    recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=FLIGHT_COLUMNS)
+    recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=FLIGHT_COLUMNS + SAFETY_COLUMNS)
     proc = None
 
     def flight_exited():
@@ -143,5 +156,6 @@ def run_pil(
                                                       ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction",
                                                        "period_s", "solver_mode", "solver_max_iter", "session")},
             flight_telemetry=None if s.telemetry is None else vars(s.telemetry),
+            safety=s.safety,
         )
     return summary, run_dir

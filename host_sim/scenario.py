@@ -28,6 +28,7 @@ import numpy as np
 from . import constants as k
 from .cw import drift_free_velocity
 from .noise import GaussMarkovParams, SensorParams
+from .safety import SafetyLimits
 from .thrusters import ThrusterParams
 
 
@@ -101,6 +102,7 @@ class Scenario:
     thrusters: ThrusterParams = field(default_factory=ThrusterParams)
     thrust_error: GaussMarkovParams = field(default_factory=GaussMarkovParams)
     sensors: SensorParams = field(default_factory=SensorParams)
+    safety: SafetyLimits = field(default_factory=SafetyLimits)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (JSON-ready) of every parameter, for run records."""
@@ -118,6 +120,7 @@ _SECTIONS = {
     "thrusters": ThrusterParams,
     "thrust_error": GaussMarkovParams,
     "sensors": SensorParams,
+    "safety": SafetyLimits,
 }
 _TOP_LEVEL = {"name", "description", "timeout_s"}
 
@@ -229,6 +232,17 @@ def validate(s: Scenario, source: str = "<scenario>") -> None:
     need(te.eta_w >= 0.0 and te.eta_v >= 0.0, "thrust_error eta_w, eta_v must be >= 0")
     need(s.sensors.sigma_position_m >= 0.0 and s.sensors.sigma_velocity_mps >= 0.0,
          "sensors sigma_position_m, sigma_velocity_mps must be >= 0")
+    sf = s.safety
+    for name in ("keepout_radius_m", "overshoot_distance_m", "docking_speed_max_mps", "collision_radius_m",
+                 "contact_speed_max_mps", "contact_lateral_max_m"):
+        need(getattr(sf, name) > 0.0, f"safety {name} must be > 0, got {getattr(sf, name)}")
+    for name in ("approach_half_angle_deg", "docking_half_angle_deg"):
+        need(0.0 < getattr(sf, name) < 89.0, f"safety {name} must be in (0, 89) deg, got {getattr(sf, name)}")
+    need(sf.overshoot_distance_m < sf.keepout_radius_m, "safety overshoot_distance_m must be < keepout_radius_m")
+    need(all(u > 0.0 for u in sf.u_max_mps), f"safety u_max_mps must be > 0 per phase, got {list(sf.u_max_mps)}")
+    for name in ("thrust_error_sigmas", "geometry_tolerance_m", "docking_cone_tolerance_m", "docking_speed_tolerance_mps",
+                 "thrust_command_tolerance_mps"):
+        need(getattr(sf, name) >= 0.0, f"safety {name} must be >= 0, got {getattr(sf, name)}")
 
 
 def random_scenario(seed: int, base: str | Scenario = "case1_vbar") -> Scenario:

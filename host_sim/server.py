@@ -27,6 +27,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from host_sim import messages as msg
+from host_sim.safety import UNITS as SAFETY_UNITS, SafetyMonitor, describe as describe_safety_episode
 
 PHASE_NAMES = {1: "rendezvous", 2: "approach", 3: "docking", 4: "docked"}
 SOLVER_STATUS = {0: "solved", 1: "max_iter", 2: "infeasible", 3: "invalid_input", 4: "numerical_error",
@@ -165,6 +166,7 @@ class RunSummary:
     rejected_messages: int = 0
     stale_commands: int = 0
     events: list = field(default_factory=list)
+    safety: dict = field(default_factory=dict)    # host_sim.safety.SafetyMonitor.summary(): verdict on truth
 
     def table(self) -> str:
         lines = [f"{'phase':<12}{'delta-v [m/s]':>15}{'time [s]':>12}"]
@@ -182,6 +184,11 @@ FLIGHT_COLUMNS: tuple[str, ...] = (
     "dv_cmd_x_mps", "dv_cmd_y_mps", "dv_cmd_z_mps", "dv_alloc_x_mps", "dv_alloc_y_mps", "dv_alloc_z_mps",
     "nav_attempts", "round_trip_ms",
 )
+#: Per-step columns of the safety monitor: the worst true margins over the period's path
+#: (corridor: distance outside the approach corridor; axial: distance along the docking axis;
+#: dock cone: distance outside the docking cone; speed: |v|_inf).
+SAFETY_COLUMNS: tuple[str, ...] = ("safety_corridor_m", "safety_axial_m", "safety_dock_cone_m",
+                                   "safety_speed_inf_mps", "safety_range_m")
 
 
 class PilServer:
@@ -203,12 +210,20 @@ class PilServer:
                                   time_per_phase_s={p: 0.0 for p in ("rendezvous", "approach", "docking")},
                                   docked=False, final_range_to_port_m=math.nan)
         self._stop = threading.Event()
+        sigma_w = math.sqrt(sim.scenario.thrust_error.steady_state_covariance()[0, 0])
+        self.safety = SafetyMonitor(sim.scenario.safety, sim.target_state, sigma_w, on_event=self._safety_event)
 
     # -- helpers -----------------------------------------------------------------------------------
     def event(self, kind: str, detail: str = "", step: Optional[int] = None) -> None:
         self.summary.events.append((self.sim.t_s, kind, detail))
         if self.record is not None:
             self.record.log_event(kind, detail, step=step, t_s=self.sim.t_s)
+
+    def _safety_event(self, kind: str, episode) -> None:
+        detail = describe_safety_episode(kind, episode, SAFETY_UNITS[episode.limit])
+        self.summary.events.append((episode.worst_t_s, kind, detail))
+        if self.record is not None:
+            self.record.log_event(kind, detail, step=episode.worst_step, t_s=episode.worst_t_s)
 
     def stop(self) -> None:
         """Ask a running run() to end after the current step (e.g. on SIGINT)."""
@@ -295,6 +310,8 @@ class PilServer:
         s.final_range_to_port_m = self.sim.range_to_port_m()
         s.dv_total_mps = sum(s.dv_per_phase_mps.values())
         s.rejected_messages = len(self.link.rejected)
+        self.safety.finish()
+        s.safety = self.safety.summary()
         for key, reason in self.link.rejected:
             self.event("rejected_message", f"{key}: {reason}")
         try:
@@ -341,6 +358,7 @@ class PilServer:
             self.event("fault", f"no hello from the flight software within {cfg.hello_timeout_s:g} s")
             return
         last_period = float(s.hello.period_s[0])  # until a cmd says otherwise: the rendezvous period
+        last_phase = 1
         wall0 = time.monotonic()
         for k in range(cfg.max_steps):
             if self._stop.is_set():
@@ -374,15 +392,21 @@ class PilServer:
                 s.late_commands += 1
                 self.event("late_cmd", f"no cmd for step {k} within its period", step=k)
                 result = sim.apply_command(np.zeros(6), last_period, 0.0)
-                self._log(k, meas, target, result, None, attempts, rtt_ms)
+                margins = self.safety.period(last_phase, k, result.path_t_s, result.path_lvlh, None,
+                                             result.dv_lvlh_mps)
+                self._log(k, meas, target, result, None, attempts, rtt_ms, margins=margins)
             else:
                 last_period = cmd.period_s
+                last_phase = cmd.phase
                 if cmd.phase == 4:  # the flight software declares docked: check it against the truth
+                    self.safety.contact(k, sim.t_s, truth)
                     s.docked = sim.range_to_port_m() <= cfg.docking_tolerance_m
                     s.end = "docked" if s.docked else "flight software reports docked, truth disagrees"
                     self._log(k, meas, target, None, cmd, attempts, rtt_ms, truth=truth)
                     return
                 result = sim.apply_command(np.asarray(cmd.pulse_s, dtype=float), cmd.period_s, self._delay_s(cmd))
+                margins = self.safety.period(cmd.phase, k, result.path_t_s, result.path_lvlh, cmd.dv_cmd_lvlh_mps,
+                                             result.dv_lvlh_mps)
                 phase = PHASE_NAMES.get(cmd.phase)
                 if phase in s.dv_per_phase_mps:
                     # The resultant |dv|_2 per period, as the dissertation's tables; dv_l1 is what six
@@ -390,7 +414,7 @@ class PilServer:
                     s.dv_per_phase_mps[phase] += float(np.linalg.norm(result.dv_lvlh_mps))
                     s.dv_l1_mps += float(np.sum(np.abs(result.dv_thruster_mps)))
                     s.time_per_phase_s[phase] += cmd.period_s
-                self._log(k, meas, target, result, cmd, attempts, rtt_ms)
+                self._log(k, meas, target, result, cmd, attempts, rtt_ms, margins=margins)
             if not cfg.lockstep:
                 self._sleep_until(wall0 + sim.t_s / cfg.speedup)
             if sim.range_to_com_m() < cfg.collision_radius_m:
@@ -414,10 +438,14 @@ class PilServer:
         if self.record is not None:
             self.record.log_step(meas, None, target=target, truth_lvlh=truth)
 
-    def _log(self, k, meas, target, result, cmd, attempts, rtt_ms, truth=None) -> None:
+    def _log(self, k, meas, target, result, cmd, attempts, rtt_ms, truth=None, margins=None) -> None:
         self.summary.steps = k + 1
         if self.record is not None:
             extra = {"nav_attempts": attempts, "round_trip_ms": rtt_ms}
+            if margins is not None and "safety_corridor_m" in self.record.extra_columns:
+                extra.update(safety_corridor_m=margins["corridor_m"], safety_axial_m=margins["axial_m"],
+                             safety_dock_cone_m=margins["dock_cone_m"], safety_speed_inf_mps=margins["speed_inf_mps"],
+                             safety_range_m=margins["range_m"])
             if cmd is not None:
                 extra.update(
                     phase=cmd.phase, guidance_status=cmd.guidance_status, solver_status=cmd.solver_status,

@@ -79,6 +79,11 @@ class StepResult:
     dv_lvlh_mps: np.ndarray         # (3,) net delta-v in LVLH, sum dv_i * axis_i
     truth_before: np.ndarray        # (6,) LVLH state at t_start_s
     truth_after: np.ndarray         # (6,) LVLH state at t_end_s
+    # The true path through the period, for safety checks between steps: times [s] from t_start_s
+    # to t_end_s (both included) at most `path_sample_s` apart and at every burn start and end, and
+    # the LVLH states there (M x 6).
+    path_t_s: np.ndarray = None
+    path_lvlh: np.ndarray = None
 
 
 class Simulator:
@@ -87,12 +92,18 @@ class Simulator:
     def __init__(self, scenario: Scenario | str, truth: str = "cw", seed: int = 0, thrust_noise: bool = True,
                  sensor_noise: bool = True, impulsive: bool = False, j2: bool = True, drag: bool = True,
                  j3_j4: bool = False, atmosphere_rotation: bool = True,
-                 cw_mean_motion_rad_s: float | None = None, tolerances: Tolerances = Tolerances()):
+                 cw_mean_motion_rad_s: float | None = None, tolerances: Tolerances = Tolerances(),
+                 path_sample_s: float = 1.0):
         """`j2`, `drag`, `j3_j4`, `atmosphere_rotation` apply to the nonlinear truth only (the CW
         truth has no perturbations). `cw_mean_motion_rad_s` overrides the CW mean motion (default:
         sqrt(mu/a^3) of the scenario orbit), e.g. to match a flight software built with other
-        constants."""
+        constants. `path_sample_s`: longest spacing of the truth path samples each StepResult carries
+        (the integrator's dense output in the nonlinear truth, closed form in CW); sampling never
+        changes the trajectory itself."""
         self.scenario = load(scenario) if isinstance(scenario, str) else scenario
+        if not (math.isfinite(path_sample_s) and path_sample_s > 0.0):
+            raise ValueError(f"path_sample_s must be a finite number > 0, got {path_sample_s!r}")
+        self.path_sample_s = float(path_sample_s)
         if truth not in TRUTH_MODELS:
             raise ValueError(f"truth must be one of {TRUTH_MODELS}, got {truth!r}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -245,12 +256,14 @@ class Simulator:
             dv_thruster = force * applied / mass
             dv_lvlh = lvlh_delta_v(dv_thruster)
             before = self.truth_lvlh()
+            path = _PathSampler(self.path_sample_s)
             if self.truth == "cw":
-                new_state = self._cw_period(self._x, period, delay, applied, force / mass, dv_lvlh)
+                new_state = self._cw_period(self._x, period, delay, applied, force / mass, dv_lvlh, path)
                 after = new_state
             else:
-                new_state = self._nonlinear_period(self._y, period, delay, applied, force / mass, dv_lvlh)
+                new_state = self._nonlinear_period(self._y, period, delay, applied, force / mass, dv_lvlh, path)
                 after = self._lvlh_from_pair(new_state)
+            path_t, path_x = path.result(self._t, before, after)
             if gm is not None:
                 gm.advance(period - delay)
         except Exception:
@@ -267,7 +280,7 @@ class Simulator:
                             delay_s=delay, pulse_commanded_s=pulses, pulse_applied_s=applied, dropped_mib=dropped,
                             truncated=truncated, thrust_error_percent=w, force_n=force,
                             dv_thruster_mps=dv_thruster, dv_lvlh_mps=dv_lvlh, truth_before=before,
-                            truth_after=after)
+                            truth_after=after, path_t_s=path_t, path_lvlh=path_x)
         self._t += period
         self._step += 1
         self._measurement = None
@@ -286,38 +299,57 @@ class Simulator:
             yield end - t, lvlh_delta_v(np.where(on, accel_per_thruster, 0.0))
             t = end
 
-    def _cw_period(self, x, period, delay, applied, accel, dv_lvlh):
+    def _cw_period(self, x, period, delay, applied, accel, dv_lvlh, path):
         n = self._n
+
+        def coast(x0, t0, dt):
+            path.add_segment(t0, dt, lambda tau: cw_stm(n, tau) @ x0)
+            return cw_stm(n, dt) @ x0
+
         if self.impulsive:
             if delay == 0.0:
                 # Exactly the flight software's prediction model: x+ = Phi(Ts) (x + [0; dv]).
-                return cw_stm(n, period) @ (x + np.concatenate((np.zeros(3), dv_lvlh)))
-            x = cw_stm(n, delay) @ x
+                x1 = x + np.concatenate((np.zeros(3), dv_lvlh))
+                path.add_segment(0.0, period, lambda tau: cw_stm(n, tau) @ x1)
+                return cw_stm(n, period) @ x1
+            x = coast(x, 0.0, delay)
             x = x + np.concatenate((np.zeros(3), dv_lvlh))
-            return cw_stm(n, period - delay) @ x
+            return coast(x, delay, period - delay)
         if delay > 0.0:
-            x = cw_stm(n, delay) @ x
+            x = coast(x, 0.0, delay)
         burned = 0.0
         for dt, a in self._burn_segments(applied, accel):
-            x = cw_stm(n, dt) @ x + cw_forced_response(n, dt) @ a
+            x0 = x
+            path.add_segment(delay + burned, dt,
+                             lambda tau, x0=x0, a=a: cw_stm(n, tau) @ x0 + cw_forced_response(n, tau) @ a)
+            x = cw_stm(n, dt) @ x0 + cw_forced_response(n, dt) @ a
             burned += dt
         rest = period - delay - burned
-        return cw_stm(n, rest) @ x if rest > 0.0 else x
+        return coast(x, delay + burned, rest) if rest > 0.0 else x
 
-    def _nonlinear_period(self, y, period, delay, applied, accel, dv_lvlh):
+    def _nonlinear_period(self, y, period, delay, applied, accel, dv_lvlh, path):
         prop = self._pair
-        y = prop.propagate(y, delay)
+
+        def leg(y0, t0, dt, thrust=None):
+            if dt <= 0.0:
+                return y0
+            times = path.sample_times(dt)
+            y1, ys = prop.propagate_sampled(y0, dt, times, thrust_lvlh_mps2=thrust)
+            path.add_states(t0, times, [self._lvlh_from_pair(yi) for yi in ys])
+            return y1
+
+        y = leg(y, 0.0, delay)
         if self.impulsive:
             if dv_lvlh.any():
                 y = y.copy()
                 # A velocity jump dv in LVLH components is the same jump C^T dv in ECI (rho unchanged).
                 y[9:12] += lvlh_basis(y[0:3], y[3:6]).T @ dv_lvlh
-            return prop.propagate(y, period - delay)
+            return leg(y, delay, period - delay)
         burned = 0.0
         for dt, a in self._burn_segments(applied, accel):
-            y = prop.propagate(y, dt, thrust_lvlh_mps2=a)
+            y = leg(y, delay + burned, dt, a)
             burned += dt
-        return prop.propagate(y, max(period - delay - burned, 0.0))
+        return leg(y, delay + burned, max(period - delay - burned, 0.0))
 
     def _target_normal_accel(self, r_t, v_t) -> float:
         """Target perturbing acceleration along its orbit normal [m/s^2] (turns the LVLH frame)."""
@@ -327,6 +359,39 @@ class Simulator:
     def _lvlh_from_pair(self, y) -> np.ndarray:
         r_t, v_t = y[0:3], y[3:6]
         return eci_to_lvlh(r_t, v_t, r_t + y[6:9], v_t + y[9:12], self._target_normal_accel(r_t, v_t))
+
+
+class _PathSampler:
+    """Collects the true states of one period at most `max_spacing_s` apart, segment by segment
+    (coast, each constant-thrust piece of a burn), so every burn start and end is a sample."""
+
+    def __init__(self, max_spacing_s: float):
+        self.max_spacing_s = max_spacing_s
+        self._t: list[float] = []
+        self._x: list[np.ndarray] = []
+
+    def sample_times(self, duration_s: float) -> np.ndarray:
+        """Sample times inside a segment, relative to its start: (0, duration], evenly spaced."""
+        count = max(1, math.ceil(duration_s / self.max_spacing_s - 1e-9))
+        return duration_s * np.arange(1, count + 1) / count
+
+    def add_states(self, t0: float, times, states) -> None:
+        self._t.extend(t0 + float(tau) for tau in times)
+        self._x.extend(np.asarray(x, float) for x in states)
+
+    def add_segment(self, t0: float, duration_s: float, state_at) -> None:
+        if duration_s <= 0.0:
+            return
+        times = self.sample_times(duration_s)
+        self.add_states(t0, times, [state_at(float(tau)) for tau in times])
+
+    def result(self, t_start: float, before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = np.array([0.0] + self._t) + t_start
+        x = np.vstack([before] + self._x) if self._x else np.vstack([before, after])
+        if not self._x:
+            t = np.array([t_start, t_start])
+        x[-1] = after  # the end state exactly as the period's result
+        return t, x
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import flight_sw
+from flight_reference import flight_params
 from host_sim import messages as msg
 from host_sim.pil import run_pil
 from host_sim.record import load_events, load_run
@@ -32,7 +33,7 @@ def _ideal_case1(tmp_path, name, params=None, **kw):
 @pytest.fixture(scope="module")
 def in_process_case1():
     case = flight_sw.dissertation_case(1)
-    return flight_sw.run_closed_loop(flight_sw.GuidanceParams(), case["x0"], case["q_lvlh_body"], case["omega_body_rad_s"])
+    return flight_sw.run_closed_loop(flight_params(), case["x0"], case["q_lvlh_body"], case["omega_body_rad_s"])
 
 
 @pytest.mark.parametrize("mode", ["peer", "router"])

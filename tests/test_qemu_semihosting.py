@@ -21,6 +21,7 @@ from host_sim.pil import run_pil
 from host_sim.record import load_run
 from host_sim.server import ServerConfig
 from qemu import build, semihosting_link, system
+from flight_reference import flight_params
 from system_mode import system_mode_or_skip
 
 pytestmark = pytest.mark.qemu
@@ -119,7 +120,7 @@ def test_system_mode_in_guest_solve_times_repeat_bit_for_bit(tmp_path, name):
     target, img = system_mode_or_skip(name)
     exe = build.cross_build(target).path
     initrd = system.program_initrd(img, exe, tmp_path / "initrd.cpio")
-    params = flight_sw.GuidanceParams()
+    params = flight_params()
     case = flight_sw.dissertation_case(1)
     ref = flight_sw.run_closed_loop(params, case["x0"], case["q_lvlh_body"], case["omega_body_rad_s"])
     command = semihosting_link.flight_command(

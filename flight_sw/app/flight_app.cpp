@@ -83,6 +83,8 @@ FlightApp::FlightApp(AppConfig config)
   if (!(cfg_.deadline_fraction > 0.0)) throw std::invalid_argument("deadline fraction must be > 0");
   if (cfg_.cpu_model.empty()) cfg_.cpu_model = build_info::kCpuModel;
   guidance_ = std::make_unique<guidance::Guidance>(cfg_.guidance);  // validates the parameters
+  if (const char* err = cfg_.nav_filter.validate(); *err) throw std::invalid_argument(err);
+  nav_filter_ = std::make_unique<nav::NavFilter>(cfg_.nav_filter, cfg_.guidance.mean_motion_rad_s());
   guidance_->set_solve_observer(&counter_);
   if (cfg_.pmu_instructions && !counter_.pmu().usable())
     std::fprintf(stderr, "[flight_sw] no PMU instruction counts: %s\n", counter_.pmu().error().c_str());
@@ -144,6 +146,7 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   }
   if (first) {  // a (re)started run
     guidance_->reset();
+    nav_filter_->reset();
     log_ = PhaseLog{};
     overruns_ = 0;
     last_cmd_.reset();
@@ -166,17 +169,29 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   guidance::NavInput in;
   in.step = nav.step;
   in.t_s = nav.t_s;
+  guidance::Vector6d z;
   for (int i = 0; i < 3; ++i) {
-    in.x_lvlh(i) = nav.position_lvlh_m[i];
-    in.x_lvlh(3 + i) = nav.velocity_lvlh_mps[i];
+    z(i) = nav.position_lvlh_m[i];
+    z(3 + i) = nav.velocity_lvlh_mps[i];
   }
+  // The filter is part of the timed, counted guidance step.
+  counter_.start_step(nav.step);
+  const auto t_filter = Clock::now();
+  counter_.before_solve();
+  const nav::NavEstimate& est = nav_filter_->update(nav.t_s, z);
+  counter_.after_solve();
+  const double filter_us = std::chrono::duration<double, std::micro>(Clock::now() - t_filter).count();
+  in.x_lvlh = est.update == nav::NavUpdate::Invalid ? z : est.x;  // an invalid input stays invalid
+  in.uncertainty.position_m = std::sqrt(est.P.diagonal().head<3>().maxCoeff());
+  in.uncertainty.velocity_mps = std::sqrt(est.P.diagonal().tail<3>().maxCoeff());
   in.q_lvlh_body = Eigen::Quaterniond(nav.q_lvlh_body[0], nav.q_lvlh_body[1], nav.q_lvlh_body[2], nav.q_lvlh_body[3]);
   in.omega_body_rad_s = Eigen::Vector3d(nav.omega_body_rad_s[0], nav.omega_body_rad_s[1], nav.omega_body_rad_s[2]);
 
   const int phase_before = phase_index(guidance_->phase());
   const double budget_us = cfg_.deadline_fraction * cfg_.guidance.phase(guidance_->phase()).Ts_s * 1e6;
-  counter_.start_step(nav.step);
-  const guidance::Command c = guidance_->step(in, budget_us);
+  guidance::Command c = guidance_->step(in, std::max(budget_us - filter_us, 1e-3));  // > 0: a budget
+  c.step_time_us += filter_us;
+  nav_filter_->command(nav.t_s, c.dv_alloc_mps, c.pulse_s);
   const uint64_t insns = counter_.instructions();
 
   const bool overrun = c.solver.status == solver::Status::TimeLimit || c.step_time_us > budget_us;

@@ -21,6 +21,7 @@
 #include "flight_sw/guidance/guidance.hpp"
 #include "flight_sw/link/messages.hpp"
 #include "flight_sw/link/zenoh_session.hpp"
+#include "flight_sw/nav/nav_filter.hpp"
 
 namespace rvd::app {
 
@@ -28,6 +29,9 @@ struct AppConfig {
   std::string endpoint = "tcp/127.0.0.1:7447";
   std::string run_id = "run";
   guidance::GuidanceParams guidance;
+  // The navigation filter between the measurements and the guidance; its noise settings are the
+  // error model's (the host passes the scenario's sensor and thrust models).
+  nav::NavFilterParams nav_filter;
   double deadline_fraction = 0.5;  // solve budget = fraction x Ts of the current phase
   bool trivial_guidance = false;   // answer every nav with zero thrust at once (link latency benchmark)
   double idle_timeout_s = 300.0;   // give up when no nav arrives for this long after hello
@@ -107,6 +111,7 @@ class FlightApp {
 
   AppConfig cfg_;
   std::unique_ptr<guidance::Guidance> guidance_;
+  std::unique_ptr<nav::NavFilter> nav_filter_;
   std::unique_ptr<link::ZenohSession> session_;
   SolveCounter counter_;
   PhaseLog log_;

@@ -16,10 +16,12 @@
 #include <vector>
 
 #include "flight_sw/app/flight_app.hpp"
+#include "flight_sw/nav/margins.hpp"
 
 namespace {
 
 std::atomic<bool> g_stop{false};
+double g_nav_accel_noise = rvd::nav::NavFilterParams{}.accel_noise_mps2_rthz;  // --set nav.accel_noise_mps2_rthz
 extern "C" void on_signal(int) { g_stop.store(true); }
 
 using rvd::guidance::GuidanceParams;
@@ -47,6 +49,14 @@ Guidance
   --barrier K               barrier weight (fixed_barrier mode)
   --deadline-fraction F     solve budget = F x Ts of the phase, on this computer's clock (default 0.5)
   --set NAME=VALUE          any guidance parameter (--list-params shows them)
+Error model (navigation filter and robustness margins)
+  --nav-sigma P,V           measurement noise, 1 sigma per LVLH axis [m, m/s] (default 0,0:
+                            noise-free sensors, the filter passes measurements through)
+  --thrust-error-sigma S    1-sigma thrust amplitude error, fraction of the delta-v (default 0)
+  --finite-burns on|off     thrusters burn for a finite time (default off: impulsive)
+  --nav-filter on|off       Kalman filter between the measurements and the guidance (default on)
+  --margins auto|off        constraint margins derived from the error model (default auto),
+                            or none (the nominal MPC); --set margins.*=... overrides one
   --trivial                 answer every nav with zero thrust at once (link latency benchmark)
 Reporting
   --cpu-model NAME          CPU model reported in hello (default: the build's -mcpu)
@@ -98,6 +108,15 @@ std::map<std::string, std::function<double&(GuidanceParams&)>> scalar_params() {
   m["port_body_x_m"] = [](GuidanceParams& g) -> double& { return g.port_body_m.x(); };
   m["port_body_y_m"] = [](GuidanceParams& g) -> double& { return g.port_body_m.y(); };
   m["port_body_z_m"] = [](GuidanceParams& g) -> double& { return g.port_body_m.z(); };
+  m["nav.accel_noise_mps2_rthz"] = [](GuidanceParams&) -> double& { return g_nav_accel_noise; };
+  m["margins.input_fraction"] = [](GuidanceParams& g) -> double& { return g.margins.input_fraction; };
+  m["margins.keepout_m"] = [](GuidanceParams& g) -> double& { return g.margins.keepout_m; };
+  m["margins.estimate_sigmas"] = [](GuidanceParams& g) -> double& { return g.margins.estimate_sigmas; };
+  m["margins.rotating_cone_factor"] = [](GuidanceParams& g) -> double& { return g.margins.rotating_cone_factor; };
+  m["margins.overshoot_m"] = [](GuidanceParams& g) -> double& { return g.margins.overshoot_m; };
+  m["margins.approach_cone_m"] = [](GuidanceParams& g) -> double& { return g.margins.approach_cone_m; };
+  m["margins.docking_cone_m"] = [](GuidanceParams& g) -> double& { return g.margins.docking_cone_m; };
+  m["margins.v_max_mps"] = [](GuidanceParams& g) -> double& { return g.margins.v_max_mps; };
   const char* phases[] = {"rendezvous", "approach", "docking"};
   for (int i = 0; i < 3; ++i) {
     auto pick = [i](GuidanceParams& g) -> PhaseParams& { return i == 0 ? g.rendezvous : i == 1 ? g.approach : g.docking; };
@@ -122,10 +141,19 @@ void for_each_phase(GuidanceParams& g, const std::function<void(PhaseParams&)>& 
   f(g.docking);
 }
 
+bool on_off(const std::string& v, const std::string& what) {
+  if (v == "on") return true;
+  if (v == "off") return false;
+  throw std::invalid_argument(what + ": on or off, got '" + v + "'");
+}
+
 rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
   rvd::app::AppConfig cfg;
   auto params = scalar_params();
   bool have_run = false;
+  rvd::nav::ErrorModel errors;
+  bool auto_margins = true;
+  std::vector<std::pair<std::string, double>> overrides;  // --set, applied after the derived margins
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto value = [&]() -> std::string {
@@ -165,9 +193,20 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
       const size_t eq = kv.find('=');
       if (eq == std::string::npos) throw std::invalid_argument("--set needs NAME=VALUE, got '" + kv + "'");
       const std::string name = kv.substr(0, eq);
-      auto it = params.find(name);
-      if (it == params.end()) throw std::invalid_argument("--set: unknown parameter '" + name + "' (see --list-params)");
-      it->second(cfg.guidance) = parse_double(kv.substr(eq + 1), name);
+      if (params.find(name) == params.end())
+        throw std::invalid_argument("--set: unknown parameter '" + name + "' (see --list-params)");
+      overrides.emplace_back(name, parse_double(kv.substr(eq + 1), name));
+    } else if (a == "--nav-sigma") {
+      const auto v = split_numbers(value(), 2, "--nav-sigma");
+      errors.sigma_position_m = v[0];
+      errors.sigma_velocity_mps = v[1];
+    } else if (a == "--thrust-error-sigma") errors.thrust_error_sigma = parse_double(value(), a);
+    else if (a == "--finite-burns") errors.finite_burns = on_off(value(), a);
+    else if (a == "--nav-filter") cfg.nav_filter.enabled = on_off(value(), a);
+    else if (a == "--margins") {
+      const std::string m = value();
+      if (m != "auto" && m != "off") throw std::invalid_argument("--margins: auto or off");
+      auto_margins = m == "auto";
     } else if (a == "--trivial") cfg.trivial_guidance = true;
     else if (a == "--cpu-model") cfg.cpu_model = value();
     else if (a == "--markers") {
@@ -182,6 +221,15 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
     else if (a == "-h" || a == "--help") { std::fputs(kUsage, stdout); std::exit(0); }
     else throw std::invalid_argument("unknown option '" + a + "'");
   }
+  cfg.nav_filter.sigma_position_m = errors.sigma_position_m;
+  cfg.nav_filter.sigma_velocity_mps = errors.sigma_velocity_mps;
+  cfg.nav_filter.thrust_error_sigma = errors.thrust_error_sigma;
+  cfg.nav_filter.finite_burns = errors.finite_burns;
+  cfg.guidance.finite_burns = errors.finite_burns;
+  for (const auto& [name, v] : overrides) params[name](cfg.guidance) = v;  // e.g. the horizon first
+  cfg.nav_filter.accel_noise_mps2_rthz = g_nav_accel_noise;
+  if (auto_margins) cfg.guidance.margins = rvd::nav::derive_margins(errors, cfg.guidance);
+  for (const auto& [name, v] : overrides) params[name](cfg.guidance) = v;  // and an explicit margin wins
   if (list_only) {
     for (auto& [name, ref] : params) std::printf("%-34s %g\n", name.c_str(), ref(cfg.guidance));
     return cfg;

@@ -51,4 +51,9 @@ void cw_impulsive_model(double n, double Ts, Matrix6d& A, Matrix63d& B) {
   B = A.rightCols<3>();  // A [0; I]
 }
 
+void cw_burn_model(double n, double Ts, double centroid_s, Matrix6d& A, Matrix63d& B) {
+  A = cw_stm(n, Ts);
+  B = centroid_s == 0.0 ? Matrix63d(A.rightCols<3>()) : Matrix63d(cw_stm(n, Ts - centroid_s).rightCols<3>());
+}
+
 }  // namespace rvd::guidance

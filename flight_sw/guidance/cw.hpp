@@ -29,4 +29,8 @@ Matrix6d cw_system_matrix(double n_rad_s);
 // (the velocity impulse is applied at the start of the period, then the state drifts).
 void cw_impulsive_model(double n_rad_s, double Ts_s, Matrix6d& A, Matrix63d& B);
 
+// The same with the impulse applied `centroid_s` after the period start (a finite burn's centroid):
+// A = Phi(Ts), B = Phi(Ts - centroid) [0; I]. centroid_s = 0 is cw_impulsive_model.
+void cw_burn_model(double n_rad_s, double Ts_s, double centroid_s, Matrix6d& A, Matrix63d& B);
+
 }  // namespace rvd::guidance

@@ -59,20 +59,25 @@ void Guidance::reset(Phase start) {
   for (auto& s : recovery_solvers_) s->reset_warm_start();
 }
 
-bool Guidance::ready_for_approach(const Vector6d& x, const TargetState& target) const {
+bool Guidance::ready_for_approach(const Vector6d& x, const TargetState& target, const StateUncertainty& u) const {
+  const double margin = params_.margins.approach_cone_m + params_.margins.estimate_sigmas * u.position_m;
   const Eigen::Vector3d rho = x.head<3>();
   const Matrix43d H = pyramid_rows_lvlh(target.q_lvlh_body, params_.approach.los_half_angle_deg * kDeg);
-  return (H * rho).maxCoeff() <= 0.0 && rho.norm() <= params_.keepout_radius_m + params_.rendezvous_switch_margin_m;
+  return (H * rho).maxCoeff() <= -margin &&
+         rho.norm() <= params_.keepout_radius_m + params_.rendezvous_switch_margin_m;
 }
 
-bool Guidance::ready_for_docking(const Vector6d& x, const TargetState& target) const {
+bool Guidance::ready_for_docking(const Vector6d& x, const TargetState& target, const StateUncertainty& u) const {
+  const Margins& m = params_.margins;
   // Within r2, slow enough for the docking QP's |v|_inf bound, and inside the docking pyramid (its hard
   // cone would make every docking QP infeasible otherwise).
   const Eigen::Vector3d rho = x.head<3>();
   const Eigen::Vector3d port = target.q_lvlh_body * params_.port_body_m;
   const Matrix43d H = pyramid_rows_lvlh(target.q_lvlh_body, params_.docking.los_half_angle_deg * kDeg);
-  return rho.norm() <= params_.approach_stop_m + params_.approach_switch_margin_m &&
-         x.tail<3>().cwiseAbs().maxCoeff() <= params_.v_max_mps && (H * (rho - port)).maxCoeff() <= 0.0;
+  return rho.norm() <= params_.approach_stop_m + m.overshoot_m + params_.approach_switch_margin_m +
+                           m.estimate_sigmas * u.position_m &&
+         x.tail<3>().cwiseAbs().maxCoeff() <= params_.v_max_mps - m.v_max_mps - m.estimate_sigmas * u.velocity_mps &&
+         (H * (rho - port)).maxCoeff() <= -(m.docking_cone_m + m.estimate_sigmas * u.position_m);
 }
 
 bool Guidance::docked(const Vector6d& x, const TargetState& target) const {
@@ -108,13 +113,14 @@ void Guidance::fall_back(Command& cmd) {
 }
 
 bool Guidance::solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Vector6d& x,
-                               const TargetState& target, double budget_left_us, solver::Info& info) {
+                               const TargetState& target, const StateUncertainty& uncertainty,
+                               double budget_left_us, solver::Info& info) {
   if (budget_left_us < 0.0) {  // the step's budget is spent already
     info = solver::Info{};
     info.status = solver::Status::TimeLimit;
     return false;
   }
-  qp.build(x, target);
+  qp.build(x, target, uncertainty);
   x0_ = x;
   sol.settings().time_limit_us = budget_left_us;
   if (observer_) observer_->before_solve();
@@ -159,8 +165,8 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
 
     // Algorithm 1: the switching conditions are checked on the newest state; a state can pass several.
     const Phase before = phase_;
-    if (phase_ == Phase::Rendezvous && ready_for_approach(x, target)) phase_ = Phase::Approach;
-    if (phase_ == Phase::Approach && ready_for_docking(x, target)) phase_ = Phase::Docking;
+    if (phase_ == Phase::Rendezvous && ready_for_approach(x, target, nav.uncertainty)) phase_ = Phase::Approach;
+    if (phase_ == Phase::Approach && ready_for_docking(x, target, nav.uncertainty)) phase_ = Phase::Docking;
     if (phase_ == Phase::Docking && docked(x, target)) phase_ = Phase::Docked;
     if (phase_ != before) plan_len_ = plan_next_ = 0;  // a plan is only valid with its own period
     cmd.phase = phase_;
@@ -176,11 +182,12 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
         return left > 0.0 ? left : -1.0;
       };
       cmd.solved = left_us() >= 0.0;
-      bool usable = solve_into_plan(*qps_[k], *solvers_[k], x, target, left_us(), cmd.solver);
+      bool usable = solve_into_plan(*qps_[k], *solvers_[k], x, target, nav.uncertainty, left_us(), cmd.solver);
       if (usable) {
         cmd.status = StepStatus::Ok;
       } else if (cmd.solver.status == solver::Status::Infeasible && params_.recovery) {
-        usable = solve_into_plan(*recovery_qps_[k], *recovery_solvers_[k], x, target, left_us(), cmd.recovery);
+        usable = solve_into_plan(*recovery_qps_[k], *recovery_solvers_[k], x, target, nav.uncertainty, left_us(),
+                                 cmd.recovery);
         if (usable) cmd.status = StepStatus::Recovered;
       }
       if (usable) {

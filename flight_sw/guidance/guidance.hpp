@@ -38,6 +38,7 @@ struct NavInput {
   Vector6d x_lvlh = Vector6d::Zero();  // chaser relative position [m] and velocity [m/s] in LVLH
   Eigen::Quaterniond q_lvlh_body = Eigen::Quaterniond::Identity();  // target attitude, LVLH <- body
   Eigen::Vector3d omega_body_rad_s = Eigen::Vector3d::Zero();       // target rate relative to LVLH, body axes
+  StateUncertainty uncertainty;  // of x_lvlh (the navigation filter's), for the margins
 };
 
 struct Command {
@@ -87,8 +88,8 @@ class Guidance {
   void reset(Phase start = Phase::Rendezvous);  // back to a phase, forgetting plans and warm starts
 
   // Phase-switching predicates of Algorithm 1 (public so that tests and the closed loop can report them).
-  bool ready_for_approach(const Vector6d& x, const TargetState& target) const;
-  bool ready_for_docking(const Vector6d& x, const TargetState& target) const;
+  bool ready_for_approach(const Vector6d& x, const TargetState& target, const StateUncertainty& u = {}) const;
+  bool ready_for_docking(const Vector6d& x, const TargetState& target, const StateUncertainty& u = {}) const;
   bool docked(const Vector6d& x, const TargetState& target) const;
 
  private:
@@ -97,7 +98,7 @@ class Guidance {
   void fall_back(Command& cmd);
   // Build and solve one QP within what is left of the budget; on success keep its plan.
   bool solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Vector6d& x, const TargetState& target,
-                       double budget_left_us, solver::Info& info);
+                       const StateUncertainty& u, double budget_left_us, solver::Info& info);
 
   GuidanceParams params_;
   Phase phase_ = Phase::Rendezvous;

@@ -50,6 +50,30 @@ struct PhaseParams {
   }
 };
 
+// 1-sigma error of the state estimate the guidance plans from, on its worst axis (0: exact).
+struct StateUncertainty {
+  double position_m = 0.0;
+  double velocity_mps = 0.0;
+};
+
+// Constraint tightening against the disturbances the flight lives with (flight_sw/guidance/README.md,
+// "Robustness margins"). All zero is the dissertation's nominal MPC; nav::derive_margins() sets them from
+// an error model. Each is applied on the prediction stages 1..N of the phase QPs and in the switching
+// rules, plus `estimate_sigmas` times the current estimate's uncertainty (position for the geometric
+// limits, velocity for v_max).
+struct Margins {
+  double input_fraction = 0.0;   // stages 1..N-1 plan with |dv|_inf <= u_max (1 - input_fraction)
+  double keepout_m = 0.0;        // rendezvous: keep-out planes at r1 + keepout_m
+  double overshoot_m = 0.0;      // approach: docking-axis distance >= r2 + overshoot_m
+  double approach_cone_m = 0.0;  // approach: the soft corridor penalty starts this far inside the faces
+  double docking_cone_m = 0.0;   // docking: hard cone H (rho - port) <= -docking_cone_m
+  double v_max_mps = 0.0;        // docking: |v|_inf <= v_max - v_max_mps
+  double estimate_sigmas = 0.0;  // each limit above also moves in by this many estimate sigmas
+  // Between two samples a spinning target's corridor turns by omega Ts while the chaser moves on a
+  // chord: the corridor margin grows by rotating_cone_factor |rho_0| (omega Ts)^2 on a spinning target.
+  double rotating_cone_factor = 0.0;
+};
+
 struct GuidanceParams {
   PhaseParams rendezvous = default_rendezvous();
   PhaseParams approach = default_approach();
@@ -95,6 +119,12 @@ struct GuidanceParams {
   double recovery_quadratic = 10.0;
   // A solve that stopped at the iteration cap is used when its primal residual is this small.
   double max_iter_accept_residual = 1e-6;
+
+  Margins margins;
+  // The thrusters burn for a finite time: the prediction models each period's delta-v as an impulse at
+  // the centroid of a full-length pulse (half of u_max m / F after the period start) instead of at the
+  // start, so that planned braking is not credited earlier than the burn delivers it.
+  bool finite_burns = false;
 
   double mean_motion_rad_s() const;
   const PhaseParams& phase(Phase p) const;  // Docked maps to docking

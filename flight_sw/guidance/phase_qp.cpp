@@ -109,7 +109,9 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
   n_ = params_.mean_motion_rad_s();
   one_norm_ = (phase_ == Phase::Rendezvous && params_.rendezvous_objective == RendezvousObjective::OneNorm);
   cone_slacks_ = (phase_ != Phase::Docking) && pp.lambda > 0.0;
-  cw_impulsive_model(n_, Ts_, A_, B_);
+  const double centroid_s =
+      params_.finite_burns ? std::min(0.5 * max_pulse_s(u_max_, params_.thrusters), 0.5 * Ts_) : 0.0;
+  cw_burn_model(n_, Ts_, centroid_s, A_, B_);
   Qw_ = pp.Q_diag.asDiagonal();
   Rw_ = pp.R_diag;
   if (pp.terminal_weight == TerminalWeight::Dare && !one_norm_)
@@ -143,7 +145,10 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
     if (L.box_row >= 0) {
       qp_.D[i].block<3, 3>(L.box_row, 0).setIdentity();
       qp_.D[i].block<3, 3>(L.box_row + 3, 0) = -Eigen::Matrix3d::Identity();
-      qp_.d[i].segment<6>(L.box_row).setConstant(u_max_);
+      // Stage 0 is what is commanded now; later stages plan with the authority left after the thrust
+      // error margin, so that the plan stays flyable when the thrusters deliver less than nominal.
+      const double bound = i == 0 ? u_max_ : u_max_ * (1.0 - params_.margins.input_fraction);
+      qp_.d[i].segment<6>(L.box_row).setConstant(bound);
     }
     if (L.slack_col >= 0) {
       qp_.r[i].segment<4>(L.slack_col).setConstant(pp.lambda);
@@ -168,7 +173,6 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
     if (L.vel_row >= 0) {
       qp_.C[i].block<3, 3>(L.vel_row, 3).setIdentity();
       qp_.C[i].block<3, 3>(L.vel_row + 3, 3) = -Eigen::Matrix3d::Identity();
-      qp_.d[i].segment<6>(L.vel_row).setConstant(params_.v_max_mps);
     }
     if (L.elastic_col >= 0) {
       const int e = L.elastic_col;
@@ -190,8 +194,9 @@ int PhaseQp::cone_row(int i) const { return stage(i).cone_row; }
 int PhaseQp::velocity_row(int i) const { return stage(i).vel_row; }
 int PhaseQp::elastic_offset(int i) const { return stage(i).elastic_col; }
 
-void PhaseQp::build(const Vector6d& x0, const TargetState& target) {
+void PhaseQp::build(const Vector6d& x0, const TargetState& target, const StateUncertainty& u) {
   x0_ = x0;
+  uncertainty_ = u;
   switch (phase_) {
     case Phase::Rendezvous:
       if (one_norm_)
@@ -223,7 +228,7 @@ void PhaseQp::fill_keepout(const Vector6d& x0, const TargetState& target) {
   // Started inside the sphere (possible for random starts): keep at least the current range rather
   // than demand an impossible jump back out; the set point then pulls the chaser outwards.
   const double r = rho.norm();
-  keepout_radius_used_ = std::min(params_.keepout_radius_m, r);
+  keepout_radius_used_ = std::min(params_.keepout_radius_m + params_.margins.keepout_m + estimate_margin_m(), r);
   const Eigen::Vector3d u0 = r > 1e-9 ? Eigen::Vector3d(rho / r) : axis_N;
   keepout_normals_[0] = u0;
   for (int i = 1; i <= N_; ++i) {
@@ -269,8 +274,13 @@ void PhaseQp::build_rendezvous_one_norm(const Vector6d& x0, const TargetState& t
 }
 
 void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
-  (void)x0;
   const PhaseParams& pp = params_.approach;
+  // Between samples a spinning target turns its corridor and its overshoot plane by omega Ts.
+  const double turn = omega_lvlh(target).norm() * Ts_;
+  const double turning = params_.margins.rotating_cone_factor * turn * turn;
+  const double cone_margin = params_.margins.approach_cone_m + estimate_margin_m() + turning * x0.head<3>().norm();
+  const double plane_m = params_.approach_stop_m + params_.margins.overshoot_m + estimate_margin_m() +
+                         turning * params_.approach_stop_m;
   fill_setpoints(target, params_.approach_stop_m + params_.approach_setpoint_offset_m);
   for (int i = 0; i <= N_; ++i) {
     qp_.q[i].noalias() = -qp_.Q[i] * reference_[i];
@@ -280,16 +290,21 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
       const Eigen::Vector3d axis = q_i * Eigen::Vector3d::UnitX();
       keepout_normals_[i] = axis;
       qp_.C[i].block<1, 3>(L.keepout_row, 0) = -axis.transpose();
-      qp_.d[i](L.keepout_row) = -params_.approach_stop_m;
+      qp_.d[i](L.keepout_row) = -plane_m;
     }
-    if (L.cone_row >= 0)  // the approach cone has its apex at the CoM
+    if (L.cone_row >= 0) {  // the approach cone has its apex at the CoM; H rho - s <= -margin
       qp_.C[i].block<4, 3>(L.cone_row, 0) = pyramid_rows_lvlh(q_i, pp.los_half_angle_deg * kDeg);
+      qp_.d[i].segment<4>(L.cone_row).setConstant(-cone_margin);
+    }
   }
 }
 
 void PhaseQp::build_docking(const Vector6d& x0, const TargetState& target) {
   (void)x0;
   const PhaseParams& pp = params_.docking;
+  const Margins& m = params_.margins;
+  const double cone_margin = m.docking_cone_m + estimate_margin_m();
+  const double v_bound = params_.v_max_mps - m.v_max_mps - m.estimate_sigmas * uncertainty_.velocity_mps;
   const Eigen::Vector3d w = omega_lvlh(target);
   for (int i = 0; i <= N_; ++i) {
     const Eigen::Quaterniond q_i = attitude_after(target, i * Ts_);
@@ -302,7 +317,9 @@ void PhaseQp::build_docking(const Vector6d& x0, const TargetState& target) {
       const Matrix43d H = pyramid_rows_lvlh(q_i, pp.los_half_angle_deg * kDeg);
       qp_.C[i].block<4, 3>(L.cone_row, 0) = H;
       qp_.d[i].segment<4>(L.cone_row).noalias() = H * port;
+      qp_.d[i].segment<4>(L.cone_row).array() -= cone_margin;
     }
+    if (L.vel_row >= 0) qp_.d[i].segment<6>(L.vel_row).setConstant(v_bound);
   }
 }
 

@@ -155,6 +155,17 @@ void bind_guidance(py::module_& m) {
           "solver_warm_start", [](const PhaseParams& p) { return p.solver.warm_start; },
           [](PhaseParams& p, bool v) { p.solver.warm_start = v; });
 
+  py::class_<Margins>(m, "Margins", "Constraint tightening against the error model (README: Robustness margins).")
+      .def(py::init<>())
+      .def_readwrite("input_fraction", &Margins::input_fraction)
+      .def_readwrite("keepout_m", &Margins::keepout_m)
+      .def_readwrite("overshoot_m", &Margins::overshoot_m)
+      .def_readwrite("approach_cone_m", &Margins::approach_cone_m)
+      .def_readwrite("docking_cone_m", &Margins::docking_cone_m)
+      .def_readwrite("v_max_mps", &Margins::v_max_mps)
+      .def_readwrite("rotating_cone_factor", &Margins::rotating_cone_factor)
+      .def_readwrite("estimate_sigmas", &Margins::estimate_sigmas);
+
   py::class_<GuidanceParams>(m, "GuidanceParams",
                              "Every guidance parameter; defaults from dissertation Table 3.1 and "
                              "flight_sw/guidance/README.md. Nested phase parameters are edited in place: "
@@ -186,6 +197,8 @@ void bind_guidance(py::module_& m) {
       .def_readwrite("recovery_weight", &GuidanceParams::recovery_weight)
       .def_readwrite("recovery_quadratic", &GuidanceParams::recovery_quadratic)
       .def_readwrite("max_iter_accept_residual", &GuidanceParams::max_iter_accept_residual)
+      .def_readwrite("margins", &GuidanceParams::margins)
+      .def_readwrite("finite_burns", &GuidanceParams::finite_burns)
       .def("mean_motion_rad_s", &GuidanceParams::mean_motion_rad_s)
       .def("validate", &GuidanceParams::validate, "empty string when usable, else what is wrong")
       .def("phase", py::overload_cast<Phase>(&GuidanceParams::phase), py::return_value_policy::reference_internal)

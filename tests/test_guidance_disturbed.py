@@ -1,0 +1,70 @@
+"""The guidance under the dissertation's own disturbances, judged on the truth by the safety monitor.
+
+Every run: the native flight executable over Zenoh, nonlinear truth (J2, drag), the Gauss-Markov
+thrust amplitude error, sensor noise (5 cm, 1 mm/s), finite burns (the default rvd-run set-up, with
+no control delay so that runs repeat). The figures asserted are the acceptance limits of the safety
+verdict: no keep-out, corridor, overshoot or collision violation, docking-cone excursion at most 2 cm
+and |v|inf at most v_max + 1 mm/s in docking. The full-size version (100 starts x 3 noise seeds) is
+the benchmark `python -m bench.safety_mc`.
+"""
+import pytest
+
+from host_sim import scenario
+from host_sim.pil import run_pil
+from host_sim.server import ServerConfig
+
+DISTURBED = dict(truth="nonlinear", sensor_noise=True, thrust_noise=True, impulsive=False)
+HARD_LIMITS = ("collision", "keepout", "approach_corridor", "overshoot", "thrust_command", "thrust_realised",
+               "contact_speed", "contact_lateral")
+
+
+def disturbed_run(tmp_path, scen, seed=0, flight_args=()):
+    summary, run_dir = run_pil(scen, seed=seed, **DISTURBED, config=ServerConfig(delay_model="none"),
+                               run_dir=tmp_path / (scen if isinstance(scen, str) else scen.name),
+                               flight_args=list(flight_args))
+    return summary, run_dir
+
+
+def assert_safe(summary):
+    s = summary.safety
+    assert summary.end == "docked", summary.end
+    violated = {name: st for name, st in s["per_limit"].items() if st["violations"]}
+    assert s["verdict"] == "safe" and not violated, violated
+    fig = s["figures"]
+    assert fig["max_docking_cone_excursion_m"] <= 0.02
+    assert fig["max_speed_inf_docking_mps"] <= 0.1 + 0.001
+    for name in HARD_LIMITS:
+        assert s["per_limit"][name]["violations"] == 0
+
+
+@pytest.mark.parametrize("case", ["case1_vbar", "case2_rbar", "case3_rotating"])
+def test_the_dissertation_cases_dock_safely_under_every_disturbance(tmp_path, flight_exe, case):
+    summary, _ = disturbed_run(tmp_path, case)
+    assert_safe(summary)
+
+
+def test_ten_random_starts_dock_safely_and_never_need_the_recovery_qp(tmp_path, flight_exe):
+    from host_sim.record import load_run
+
+    infeasible = 0
+    for start in range(1, 11):
+        summary, run_dir = disturbed_run(tmp_path, scenario.random_scenario(start))
+        assert_safe(summary)
+        _, steps = load_run(run_dir)
+        infeasible += int((steps["solver_status"] == 2).sum())
+    assert infeasible == 0
+
+
+def test_the_nominal_mpc_without_filter_or_margins_is_judged_unsafe(tmp_path, flight_exe):
+    """The monitor must be able to fire on a real run: the dissertation's nominal MPC on raw
+    measurements (no navigation filter, no margins) under the same disturbances leaves its limits."""
+    from host_sim.record import load_events, load_run
+
+    summary, run_dir = disturbed_run(tmp_path, "case1_vbar", flight_args=("--nav-filter", "off", "--margins", "off"))
+    assert summary.safety["verdict"] == "unsafe"
+    violated = {name for name, st in summary.safety["per_limit"].items() if st["violations"]}
+    assert violated & {"keepout", "approach_corridor", "overshoot", "docking_cone", "docking_speed"}
+    meta, _ = load_run(run_dir)
+    assert meta["safety"]["verdict"] == "unsafe"
+    events = load_events(run_dir)
+    assert (events["kind"] == "safety_violation").sum() == summary.safety["violations"]
