@@ -139,6 +139,37 @@ def checks(metas: list[dict], df: pd.DataFrame) -> dict:
 
 
 # ---- plots -------------------------------------------------------------------------------------
+def safety_tables(metas: list[dict]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(verdict per run, violations per target, phase, scenario and limit with the worst one) from the
+    safety monitor's summary in each record (host_sim.safety: judged on the truth)."""
+    verdicts, rows = [], []
+    for m in metas:
+        s = m.get("safety") or {}
+        if not s:
+            continue
+        fig = s.get("figures", {})
+        verdicts.append({"run": m["dir"], "target": m.get("target"), "kind": m.get("kind"),
+                         "scenario": m.get("scenario_label"), "verdict": s.get("verdict"),
+                         "violations": s.get("violations"), "excursions": s.get("excursions"),
+                         "dock_cone_margin_cm": None if fig.get("max_docking_cone_excursion_m") is None
+                         else -100 * fig["max_docking_cone_excursion_m"],
+                         "closest_axial_approach_m": fig.get("min_axial_distance_approach_m"),
+                         "max_speed_docking_mm_s": 1000 * (fig.get("max_speed_inf_docking_mps") or 0.0)})
+        for ep in s.get("episodes", []):
+            rows.append({"target": m.get("target"), "phase": ep["phase"], "scenario": m.get("scenario_label"),
+                         "limit": ep["limit"], "kind": ep["kind"], "worst": ep["worst"], "unit": ep["unit"],
+                         "run": m["dir"], "step": ep["worst_step"]})
+    per_run = pd.DataFrame(verdicts)
+    if not rows:
+        return per_run, pd.DataFrame()
+    ep = pd.DataFrame(rows)
+    worst = ep.loc[ep.groupby(["target", "phase", "scenario", "limit", "kind"])["worst"].idxmax()]
+    counts = ep.groupby(["target", "phase", "scenario", "limit", "kind"]).size().rename("count").reset_index()
+    table = counts.merge(worst[["target", "phase", "scenario", "limit", "kind", "worst", "unit", "run", "step"]],
+                         on=["target", "phase", "scenario", "limit", "kind"])
+    return per_run, table
+
+
 def plot_histograms(rows: pd.DataFrame, target: str, path: Path) -> None:
     g = rows[rows["target"] == target]
     fig, axes = plt.subplots(2, 3, figsize=(15, 7.5))
@@ -281,7 +312,10 @@ def write(out: Path) -> Path:
         g = g.sort_values("N")
         scaling[f"{target} {phase}"] = {"N": g["N"].tolist(), "mean_ms": g["target_ms_mean"].tolist(),
                                        "ratio_last_first": float(g["target_ms_mean"].iloc[-1] / g["target_ms_mean"].iloc[0])}
+    per_run_safety, safety_violations = safety_tables(metas)
     report = {"stats": table.to_dict(orient="records"), "checks": chk, "scaling": scaling,
+              "safety": {"runs": per_run_safety.to_dict(orient="records"),
+                         "violations": safety_violations.to_dict(orient="records")},
               "runs": runs.to_dict(orient="records"),
               "environment": {"host": platform.platform(), "python": sys.version.split()[0],
                               "qemu": _tool_version(["qemu-arm", "--version"])}}
@@ -341,6 +375,21 @@ def write(out: Path) -> Path:
                 cls = "ok" if all(x is not None and abs(x) <= 1e-6 for x in v) else "bad"
             items.append(f"<li class='{cls}'>{html.escape(k)}: {html.escape(json.dumps(v))}</li>")
         parts.append(f"<h3>{html.escape(t)}</h3><ul>{''.join(items)}</ul>")
+    per_run, violations = safety_tables(metas)
+    parts.append("<h2>Safety (judged on the truth)</h2><p>The host's safety monitor checks every limit the "
+                 "guidance is meant to hold on the true path, at most 1 s apart and at every burn edge: keep-out "
+                 "sphere outside the approach corridor, approach corridor, overshoot plane, docking cone, "
+                 "|v|<sub>&infin;</sub> in docking, collision, commanded and realised &Delta;v, contact conditions "
+                 "(host_sim/safety.py; limits and their sources in each record's meta.json).</p>")
+    if not per_run.empty:
+        tally = per_run.groupby(["target", "verdict"]).size().rename("runs").reset_index()
+        parts.append(_table_html(tally))
+        if violations.empty:
+            parts.append("<p class='ok'>No violation in any run.</p>")
+        else:
+            parts.append("<p class='bad'>Violations per target, phase, scenario and limit, with the worst one:</p>"
+                         + _table_html(violations))
+        parts.append("<details><summary>per run</summary>" + _table_html(per_run) + "</details>")
     parts.append("<h2>Memory and size</h2>")
     if not memory.empty:
         parts.append(_table_html(memory))

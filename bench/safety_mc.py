@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import shutil
 import sys
 import time
@@ -34,7 +35,7 @@ import numpy as np
 DISSERTATION_CH5 = {"dv_std_mean_mps": 4.25, "tf_std_mean_min": 19.536}
 
 
-def run_one(start: int, seed: int, run_dir: str, flight_exe: str | None) -> dict:
+def run_one(start: int, seed: int, run_dir: str, flight_exe: str | None, flight_args: tuple = ()) -> dict:
     """One run (in a worker process); returns its row."""
     from host_sim import scenario
     from host_sim.pil import run_pil
@@ -45,7 +46,8 @@ def run_one(start: int, seed: int, run_dir: str, flight_exe: str | None) -> dict
         shutil.rmtree(path)  # an unfinished record of a killed run
     cfg = ServerConfig(delay_model="none")
     summary, _ = run_pil(scenario.random_scenario(start), seed=seed, truth="nonlinear", sensor_noise=True,
-                         thrust_noise=True, impulsive=False, flight_exe=flight_exe, config=cfg, run_dir=path)
+                         thrust_noise=True, impulsive=False, flight_exe=flight_exe, flight_args=list(flight_args),
+                         config=cfg, run_dir=path)
     return row_of(path)
 
 
@@ -81,6 +83,7 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel runs (default: all cores)")
     ap.add_argument("--out", default="reports/safety_mc", help="output folder (default reports/safety_mc)")
     ap.add_argument("--flight-sw", default=None, help="flight executable (default build/native)")
+    ap.add_argument("--flight-args", default="", help='extra flight options, e.g. "--margins off" (an ablation)')
     args = ap.parse_args(argv)
     if args.starts < 1 or args.noise_seeds < 1 or args.jobs < 1:
         print("safety_mc: --starts, --noise-seeds and --jobs must be >= 1", file=sys.stderr)
@@ -89,8 +92,9 @@ def main(argv=None) -> int:
 
     exe = str(find_flight_executable(args.flight_sw))
     out = Path(args.out)
+    flight_args = tuple(shlex.split(args.flight_args))
     setup = {"kind": "rvd-pil safety Monte Carlo 1", "truth": "nonlinear", "noise": "sensor+thrust",
-             "burns": "finite", "delay": "none"}
+             "burns": "finite", "delay": "none", "flight_args": list(flight_args)}
     setup_file = out / "setup.json"
     if setup_file.exists() and json.loads(setup_file.read_text()) != setup:
         print(f"safety_mc: {out} holds another set-up ({setup_file}); choose another --out", file=sys.stderr)
@@ -111,7 +115,7 @@ def main(argv=None) -> int:
     t0 = time.monotonic()
     done = 0
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        pending = {pool.submit(run_one, s, k, d, exe) for s, k, d in todo}
+        pending = {pool.submit(run_one, s, k, d, exe, flight_args) for s, k, d in todo}
         try:
             while pending:
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)

@@ -47,6 +47,7 @@ import numpy as np
 from .frames import quaternion_to_matrix
 
 PHASES = {1: "rendezvous", 2: "approach", 3: "docking", 4: "docked"}
+MAX_EPISODES = 200  # violations listed one by one in the summary (all are counted and in events.csv)
 
 
 @dataclass(frozen=True)
@@ -141,6 +142,7 @@ class SafetyMonitor:
         self.sigma_w = float(sigma_w_percent) / 100.0
         self.on_event = on_event  # called with (kind, episode) when an episode closes
         self.events: list[_Episode] = []
+        self._kinds: list[str] = []
         self._open: dict[str, _Episode] = {}
         self._stats = {name: _LimitStats() for name in UNITS}
         self._a_app = math.radians(limits.approach_half_angle_deg)
@@ -196,6 +198,7 @@ class SafetyMonitor:
         if ep.worst > st.worst:
             st.worst, st.worst_step, st.worst_t_s, st.worst_phase = ep.worst, ep.worst_step, ep.worst_t_s, ep.phase
         self.events.append(ep)
+        self._kinds.append(kind)
         if self.on_event is not None:
             self.on_event(kind, ep)
 
@@ -313,7 +316,11 @@ class SafetyMonitor:
                                "tolerance": self._tolerance(name)}
         figures = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                    for k, v in self.figures.items()}
-        return {"verdict": self.verdict(), "violations": self.violations,
+        episodes = [{"limit": ep.limit, "kind": kind, "phase": ep.phase, "worst": ep.worst, "unit": UNITS[ep.limit],
+                     "worst_step": ep.worst_step, "worst_t_s": ep.worst_t_s, "start_t_s": ep.start_t_s,
+                     "end_t_s": ep.end_t_s}
+                    for ep, kind in zip(self.events, self._kinds) if kind != "safety_excursion"][:MAX_EPISODES]
+        return {"verdict": self.verdict(), "violations": self.violations, "episodes": episodes,
                 "excursions": sum(s.excursions for s in self._stats.values()),
                 "initial_violations": sum(s.initial for s in self._stats.values()),
                 "limits": {k: (list(v) if isinstance(v, tuple) else v) for k, v in lim.items()},

@@ -191,6 +191,23 @@ SAFETY_COLUMNS: tuple[str, ...] = ("safety_corridor_m", "safety_axial_m", "safet
                                    "safety_speed_inf_mps", "safety_range_m")
 
 
+_FALLBACK_MEANING = {
+    1: "the previous plan's next delta-v was commanded",
+    2: "zero thrust was commanded (no plan of this phase left)",
+    3: "the navigation input was rejected; the previous plan's next delta-v or zero was commanded",
+    5: "the phase QP was infeasible; the recovery QP (hard state rows made elastic) was solved and its first "
+       "delta-v commanded",
+}
+
+
+def _fallback_text(cmd) -> str:
+    status = GUIDANCE_STATUS.get(cmd.guidance_status, str(cmd.guidance_status))
+    solver = SOLVER_STATUS.get(cmd.solver_status, str(cmd.solver_status))
+    dv = ", ".join(f"{v:+.4f}" for v in cmd.dv_cmd_lvlh_mps)
+    return (f"{PHASE_NAMES.get(cmd.phase, cmd.phase)}: {status} (solver {solver}): "
+            f"{_FALLBACK_MEANING.get(cmd.guidance_status, '')}; dv [{dv}] m/s")
+
+
 class PilServer:
     """Runs one scenario against a flight software connected over Zenoh.
 
@@ -407,6 +424,8 @@ class PilServer:
                 result = sim.apply_command(np.asarray(cmd.pulse_s, dtype=float), cmd.period_s, self._delay_s(cmd))
                 margins = self.safety.period(cmd.phase, k, result.path_t_s, result.path_lvlh, cmd.dv_cmd_lvlh_mps,
                                              result.dv_lvlh_mps)
+                if cmd.guidance_status not in (0, 4):  # not a plain solve: say what was flown and why
+                    self.event("guidance_fallback", _fallback_text(cmd), step=k)
                 phase = PHASE_NAMES.get(cmd.phase)
                 if phase in s.dv_per_phase_mps:
                     # The resultant |dv|_2 per period, as the dissertation's tables; dv_l1 is what six

@@ -182,8 +182,10 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   counter_.after_solve();
   const double filter_us = std::chrono::duration<double, std::micro>(Clock::now() - t_filter).count();
   in.x_lvlh = est.update == nav::NavUpdate::Invalid ? z : est.x;  // an invalid input stays invalid
-  in.uncertainty.position_m = std::sqrt(est.P.diagonal().head<3>().maxCoeff());
-  in.uncertainty.velocity_mps = std::sqrt(est.P.diagonal().tail<3>().maxCoeff());
+  in.quality.position_m = std::sqrt(est.P.diagonal().head<3>().maxCoeff());
+  in.quality.velocity_mps = std::sqrt(est.P.diagonal().tail<3>().maxCoeff());
+  for (int j = 0; j < 6; ++j) in.quality.thrust_scale[j] = 1.0 + est.thrust_error(j);
+  in.quality.thrust_scale_sigma = est.thrust_error_sigma;
   in.q_lvlh_body = Eigen::Quaterniond(nav.q_lvlh_body[0], nav.q_lvlh_body[1], nav.q_lvlh_body[2], nav.q_lvlh_body[3]);
   in.omega_body_rad_s = Eigen::Vector3d(nav.omega_body_rad_s[0], nav.omega_body_rad_s[1], nav.omega_body_rad_s[2]);
 
@@ -191,7 +193,7 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   const double budget_us = cfg_.deadline_fraction * cfg_.guidance.phase(guidance_->phase()).Ts_s * 1e6;
   guidance::Command c = guidance_->step(in, std::max(budget_us - filter_us, 1e-3));  // > 0: a budget
   c.step_time_us += filter_us;
-  nav_filter_->command(nav.t_s, c.dv_alloc_mps, c.pulse_s);
+  nav_filter_->command(nav.t_s, c.dv_nominal_mps, c.pulse_s);
   const uint64_t insns = counter_.instructions();
 
   const bool overrun = c.solver.status == solver::Status::TimeLimit || c.step_time_us > budget_us;

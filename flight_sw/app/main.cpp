@@ -21,7 +21,6 @@
 namespace {
 
 std::atomic<bool> g_stop{false};
-double g_nav_accel_noise = rvd::nav::NavFilterParams{}.accel_noise_mps2_rthz;  // --set nav.accel_noise_mps2_rthz
 extern "C" void on_signal(int) { g_stop.store(true); }
 
 using rvd::guidance::GuidanceParams;
@@ -92,39 +91,45 @@ double parse_double(const std::string& s, const std::string& what) {
   return v;
 }
 
-// Named guidance parameters for --set: every scalar a user may want to sweep.
-std::map<std::string, std::function<double&(GuidanceParams&)>> scalar_params() {
-  std::map<std::string, std::function<double&(GuidanceParams&)>> m;
-  m["orbit_altitude_m"] = [](GuidanceParams& g) -> double& { return g.orbit_altitude_m; };
-  m["keepout_radius_m"] = [](GuidanceParams& g) -> double& { return g.keepout_radius_m; };
-  m["approach_stop_m"] = [](GuidanceParams& g) -> double& { return g.approach_stop_m; };
-  m["dock_tolerance_m"] = [](GuidanceParams& g) -> double& { return g.dock_tolerance_m; };
-  m["v_max_mps"] = [](GuidanceParams& g) -> double& { return g.v_max_mps; };
-  m["rendezvous_setpoint_offset_m"] = [](GuidanceParams& g) -> double& { return g.rendezvous_setpoint_offset_m; };
-  m["approach_setpoint_offset_m"] = [](GuidanceParams& g) -> double& { return g.approach_setpoint_offset_m; };
-  m["rendezvous_switch_margin_m"] = [](GuidanceParams& g) -> double& { return g.rendezvous_switch_margin_m; };
-  m["approach_switch_margin_m"] = [](GuidanceParams& g) -> double& { return g.approach_switch_margin_m; };
-  m["keepout_rate_cap_factor"] = [](GuidanceParams& g) -> double& { return g.keepout_rate_cap_factor; };
-  m["port_body_x_m"] = [](GuidanceParams& g) -> double& { return g.port_body_m.x(); };
-  m["port_body_y_m"] = [](GuidanceParams& g) -> double& { return g.port_body_m.y(); };
-  m["port_body_z_m"] = [](GuidanceParams& g) -> double& { return g.port_body_m.z(); };
-  m["nav.accel_noise_mps2_rthz"] = [](GuidanceParams&) -> double& { return g_nav_accel_noise; };
-  m["margins.input_fraction"] = [](GuidanceParams& g) -> double& { return g.margins.input_fraction; };
-  m["margins.keepout_m"] = [](GuidanceParams& g) -> double& { return g.margins.keepout_m; };
-  m["margins.estimate_sigmas"] = [](GuidanceParams& g) -> double& { return g.margins.estimate_sigmas; };
-  m["margins.rotating_cone_factor"] = [](GuidanceParams& g) -> double& { return g.margins.rotating_cone_factor; };
-  m["margins.overshoot_m"] = [](GuidanceParams& g) -> double& { return g.margins.overshoot_m; };
-  m["margins.approach_cone_m"] = [](GuidanceParams& g) -> double& { return g.margins.approach_cone_m; };
-  m["margins.docking_cone_m"] = [](GuidanceParams& g) -> double& { return g.margins.docking_cone_m; };
-  m["margins.v_max_mps"] = [](GuidanceParams& g) -> double& { return g.margins.v_max_mps; };
+using AppConfig = rvd::app::AppConfig;
+
+// Named parameters for --set: every scalar a user may want to sweep.
+std::map<std::string, std::function<double&(AppConfig&)>> scalar_params() {
+  std::map<std::string, std::function<double&(AppConfig&)>> m;
+  m["orbit_altitude_m"] = [](AppConfig& c) -> double& { return c.guidance.orbit_altitude_m; };
+  m["keepout_radius_m"] = [](AppConfig& c) -> double& { return c.guidance.keepout_radius_m; };
+  m["approach_stop_m"] = [](AppConfig& c) -> double& { return c.guidance.approach_stop_m; };
+  m["dock_tolerance_m"] = [](AppConfig& c) -> double& { return c.guidance.dock_tolerance_m; };
+  m["v_max_mps"] = [](AppConfig& c) -> double& { return c.guidance.v_max_mps; };
+  m["rendezvous_setpoint_offset_m"] = [](AppConfig& c) -> double& { return c.guidance.rendezvous_setpoint_offset_m; };
+  m["approach_setpoint_offset_m"] = [](AppConfig& c) -> double& { return c.guidance.approach_setpoint_offset_m; };
+  m["rendezvous_switch_margin_m"] = [](AppConfig& c) -> double& { return c.guidance.rendezvous_switch_margin_m; };
+  m["approach_switch_margin_m"] = [](AppConfig& c) -> double& { return c.guidance.approach_switch_margin_m; };
+  m["keepout_rate_cap_factor"] = [](AppConfig& c) -> double& { return c.guidance.keepout_rate_cap_factor; };
+  m["port_body_x_m"] = [](AppConfig& c) -> double& { return c.guidance.port_body_m.x(); };
+  m["port_body_y_m"] = [](AppConfig& c) -> double& { return c.guidance.port_body_m.y(); };
+  m["port_body_z_m"] = [](AppConfig& c) -> double& { return c.guidance.port_body_m.z(); };
+  m["nav.accel_noise_mps2_rthz"] = [](AppConfig& c) -> double& { return c.nav_filter.accel_noise_mps2_rthz; };
+  m["nav.gate_chi2"] = [](AppConfig& c) -> double& { return c.nav_filter.gate_chi2; };
+  m["nav.thrust_error_tau_s"] = [](AppConfig& c) -> double& { return c.nav_filter.thrust_error_tau_s; };
+  m["margins.input_fraction"] = [](AppConfig& c) -> double& { return c.guidance.margins.input_fraction; };
+  m["margins.plan_reserve_fraction"] = [](AppConfig& c) -> double& { return c.guidance.margins.plan_reserve_fraction; };
+  m["margins.keepout_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.keepout_m; };
+  m["margins.estimate_sigmas"] = [](AppConfig& c) -> double& { return c.guidance.margins.estimate_sigmas; };
+  m["margins.approach_entry_brake_fraction"] = [](AppConfig& c) -> double& { return c.guidance.margins.approach_entry_brake_fraction; };
+  m["margins.rotating_cone_factor"] = [](AppConfig& c) -> double& { return c.guidance.margins.rotating_cone_factor; };
+  m["margins.overshoot_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.overshoot_m; };
+  m["margins.approach_cone_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.approach_cone_m; };
+  m["margins.docking_cone_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.docking_cone_m; };
+  m["margins.v_max_mps"] = [](AppConfig& c) -> double& { return c.guidance.margins.v_max_mps; };
   const char* phases[] = {"rendezvous", "approach", "docking"};
   for (int i = 0; i < 3; ++i) {
     auto pick = [i](GuidanceParams& g) -> PhaseParams& { return i == 0 ? g.rendezvous : i == 1 ? g.approach : g.docking; };
     const std::string p = phases[i];
-    m[p + ".Ts_s"] = [pick](GuidanceParams& g) -> double& { return pick(g).Ts_s; };
-    m[p + ".lambda"] = [pick](GuidanceParams& g) -> double& { return pick(g).lambda; };
-    m[p + ".los_half_angle_deg"] = [pick](GuidanceParams& g) -> double& { return pick(g).los_half_angle_deg; };
-    m[p + ".u_max_mps"] = [pick](GuidanceParams& g) -> double& { return pick(g).u_max_mps; };
+    m[p + ".Ts_s"] = [pick](AppConfig& c) -> double& { return pick(c.guidance).Ts_s; };
+    m[p + ".lambda"] = [pick](AppConfig& c) -> double& { return pick(c.guidance).lambda; };
+    m[p + ".los_half_angle_deg"] = [pick](AppConfig& c) -> double& { return pick(c.guidance).los_half_angle_deg; };
+    m[p + ".u_max_mps"] = [pick](AppConfig& c) -> double& { return pick(c.guidance).u_max_mps; };
   }
   return m;
 }
@@ -226,12 +231,11 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
   cfg.nav_filter.thrust_error_sigma = errors.thrust_error_sigma;
   cfg.nav_filter.finite_burns = errors.finite_burns;
   cfg.guidance.finite_burns = errors.finite_burns;
-  for (const auto& [name, v] : overrides) params[name](cfg.guidance) = v;  // e.g. the horizon first
-  cfg.nav_filter.accel_noise_mps2_rthz = g_nav_accel_noise;
+  for (const auto& [name, v] : overrides) params[name](cfg) = v;  // e.g. the horizon first
   if (auto_margins) cfg.guidance.margins = rvd::nav::derive_margins(errors, cfg.guidance);
-  for (const auto& [name, v] : overrides) params[name](cfg.guidance) = v;  // and an explicit margin wins
+  for (const auto& [name, v] : overrides) params[name](cfg) = v;  // and an explicit margin wins
   if (list_only) {
-    for (auto& [name, ref] : params) std::printf("%-34s %g\n", name.c_str(), ref(cfg.guidance));
+    for (auto& [name, ref] : params) std::printf("%-34s %g\n", name.c_str(), ref(cfg));
     return cfg;
   }
   if (!have_run) throw std::invalid_argument("--run RUN_ID is required");

@@ -59,15 +59,26 @@ void Guidance::reset(Phase start) {
   for (auto& s : recovery_solvers_) s->reset_warm_start();
 }
 
-bool Guidance::ready_for_approach(const Vector6d& x, const TargetState& target, const StateUncertainty& u) const {
+bool Guidance::ready_for_approach(const Vector6d& x, const TargetState& target, const EstimateQuality& u) const {
   const double margin = params_.margins.approach_cone_m + params_.margins.estimate_sigmas * u.position_m;
   const Eigen::Vector3d rho = x.head<3>();
   const Matrix43d H = pyramid_rows_lvlh(target.q_lvlh_body, params_.approach.los_half_angle_deg * kDeg);
-  return (H * rho).maxCoeff() <= -margin &&
-         rho.norm() <= params_.keepout_radius_m + params_.rendezvous_switch_margin_m;
+  if (!((H * rho).maxCoeff() <= -margin && rho.norm() <= params_.keepout_radius_m + params_.rendezvous_switch_margin_m))
+    return false;
+  const double fraction = params_.margins.approach_entry_brake_fraction;
+  if (fraction <= 0.0) return true;
+  // Entry only at a speed the approach phase can stop inside the corridor: towards each face, the
+  // braking distance at `fraction` of the phase's planned deceleration fits into the distance to it.
+  const PhaseParams& ap = params_.approach;
+  const double decel = fraction * ap.u_max_mps * (1.0 - params_.margins.input_fraction) / ap.Ts_s;
+  const Eigen::Vector4d inside = -(H * rho).array() - margin;
+  const Eigen::Vector4d rate = H * x.tail<3>();  // > 0: moving towards the face
+  for (int j = 0; j < 4; ++j)
+    if (rate(j) > 0.0 && rate(j) * rate(j) > 2.0 * decel * inside(j)) return false;
+  return true;
 }
 
-bool Guidance::ready_for_docking(const Vector6d& x, const TargetState& target, const StateUncertainty& u) const {
+bool Guidance::ready_for_docking(const Vector6d& x, const TargetState& target, const EstimateQuality& u) const {
   const Margins& m = params_.margins;
   // Within r2, slow enough for the docking QP's |v|_inf bound, and inside the docking pyramid (its hard
   // cone would make every docking QP infeasible otherwise).
@@ -113,14 +124,14 @@ void Guidance::fall_back(Command& cmd) {
 }
 
 bool Guidance::solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Vector6d& x,
-                               const TargetState& target, const StateUncertainty& uncertainty,
+                               const TargetState& target, const EstimateQuality& quality,
                                double budget_left_us, solver::Info& info) {
   if (budget_left_us < 0.0) {  // the step's budget is spent already
     info = solver::Info{};
     info.status = solver::Status::TimeLimit;
     return false;
   }
-  qp.build(x, target, uncertainty);
+  qp.build(x, target, quality);
   x0_ = x;
   sol.settings().time_limit_us = budget_left_us;
   if (observer_) observer_->before_solve();
@@ -165,8 +176,8 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
 
     // Algorithm 1: the switching conditions are checked on the newest state; a state can pass several.
     const Phase before = phase_;
-    if (phase_ == Phase::Rendezvous && ready_for_approach(x, target, nav.uncertainty)) phase_ = Phase::Approach;
-    if (phase_ == Phase::Approach && ready_for_docking(x, target, nav.uncertainty)) phase_ = Phase::Docking;
+    if (phase_ == Phase::Rendezvous && ready_for_approach(x, target, nav.quality)) phase_ = Phase::Approach;
+    if (phase_ == Phase::Approach && ready_for_docking(x, target, nav.quality)) phase_ = Phase::Docking;
     if (phase_ == Phase::Docking && docked(x, target)) phase_ = Phase::Docked;
     if (phase_ != before) plan_len_ = plan_next_ = 0;  // a plan is only valid with its own period
     cmd.phase = phase_;
@@ -182,11 +193,11 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
         return left > 0.0 ? left : -1.0;
       };
       cmd.solved = left_us() >= 0.0;
-      bool usable = solve_into_plan(*qps_[k], *solvers_[k], x, target, nav.uncertainty, left_us(), cmd.solver);
+      bool usable = solve_into_plan(*qps_[k], *solvers_[k], x, target, nav.quality, left_us(), cmd.solver);
       if (usable) {
         cmd.status = StepStatus::Ok;
       } else if (cmd.solver.status == solver::Status::Infeasible && params_.recovery) {
-        usable = solve_into_plan(*recovery_qps_[k], *recovery_solvers_[k], x, target, nav.uncertainty, left_us(),
+        usable = solve_into_plan(*recovery_qps_[k], *recovery_solvers_[k], x, target, nav.quality, left_us(),
                                  cmd.recovery);
         if (usable) cmd.status = StepStatus::Recovered;
       }
@@ -202,9 +213,11 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
   const PhaseParams& pp = params_.phase(cmd.phase);
   cmd.period_s = pp.Ts_s;
   if (cmd.status == StepStatus::Docked) cmd.dv_cmd_mps.setZero();
-  const Allocation a = allocate_thrusters(cmd.dv_cmd_mps, max_pulse_s(pp.u_max_mps, params_.thrusters), params_.thrusters);
+  const Allocation a = allocate_thrusters(cmd.dv_cmd_mps, max_pulse_s(pp.u_max_mps, params_.thrusters),
+                                          params_.thrusters, nav.quality.thrust_scale);
   cmd.pulse_s = a.pulse_s;
   cmd.dv_alloc_mps = a.dv_alloc_mps;
+  cmd.dv_nominal_mps = a.dv_nominal_mps;
   cmd.step_time_us = elapsed_us(t0);
   return cmd;
 }

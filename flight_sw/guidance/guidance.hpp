@@ -38,7 +38,7 @@ struct NavInput {
   Vector6d x_lvlh = Vector6d::Zero();  // chaser relative position [m] and velocity [m/s] in LVLH
   Eigen::Quaterniond q_lvlh_body = Eigen::Quaterniond::Identity();  // target attitude, LVLH <- body
   Eigen::Vector3d omega_body_rad_s = Eigen::Vector3d::Zero();       // target rate relative to LVLH, body axes
-  StateUncertainty uncertainty;  // of x_lvlh (the navigation filter's), for the margins
+  EstimateQuality quality;  // of x_lvlh and of the thrusters (the navigation filter's): margins, allocation
 };
 
 struct Command {
@@ -47,7 +47,8 @@ struct Command {
   Phase phase = Phase::Rendezvous;  // the phase this command belongs to (after this step's switching)
   double period_s = 0.0;            // the phase's control period: the next navigation input comes then
   Eigen::Vector3d dv_cmd_mps = Eigen::Vector3d::Zero();    // commanded impulsive delta-v, LVLH
-  Eigen::Vector3d dv_alloc_mps = Eigen::Vector3d::Zero();  // what the pulses realise nominally
+  Eigen::Vector3d dv_alloc_mps = Eigen::Vector3d::Zero();  // what the pulses are expected to realise
+  Eigen::Vector3d dv_nominal_mps = Eigen::Vector3d::Zero();  // what they realise at nominal force
   std::array<double, 6> pulse_s{};  // thruster on-times, order +x, -x, +y, -y, +z, -z
   StepStatus status = StepStatus::ZeroThrust;
   Fallback fallback = Fallback::None;
@@ -88,8 +89,8 @@ class Guidance {
   void reset(Phase start = Phase::Rendezvous);  // back to a phase, forgetting plans and warm starts
 
   // Phase-switching predicates of Algorithm 1 (public so that tests and the closed loop can report them).
-  bool ready_for_approach(const Vector6d& x, const TargetState& target, const StateUncertainty& u = {}) const;
-  bool ready_for_docking(const Vector6d& x, const TargetState& target, const StateUncertainty& u = {}) const;
+  bool ready_for_approach(const Vector6d& x, const TargetState& target, const EstimateQuality& u = {}) const;
+  bool ready_for_docking(const Vector6d& x, const TargetState& target, const EstimateQuality& u = {}) const;
   bool docked(const Vector6d& x, const TargetState& target) const;
 
  private:
@@ -98,7 +99,7 @@ class Guidance {
   void fall_back(Command& cmd);
   // Build and solve one QP within what is left of the budget; on success keep its plan.
   bool solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Vector6d& x, const TargetState& target,
-                       const StateUncertainty& u, double budget_left_us, solver::Info& info);
+                       const EstimateQuality& u, double budget_left_us, solver::Info& info);
 
   GuidanceParams params_;
   Phase phase_ = Phase::Rendezvous;

@@ -4,6 +4,7 @@
 
 #include <Eigen/Dense>
 
+#include <array>
 #include <cstdint>
 #include <string>
 
@@ -50,25 +51,35 @@ struct PhaseParams {
   }
 };
 
-// 1-sigma error of the state estimate the guidance plans from, on its worst axis (0: exact).
-struct StateUncertainty {
+// How well the guidance knows what it plans from (the navigation filter's): the 1-sigma error of the
+// state estimate on its worst axis, the thrusters' estimated relative force and its 1-sigma error
+// (worst thruster). All zero / nominal: exact knowledge.
+struct EstimateQuality {
   double position_m = 0.0;
   double velocity_mps = 0.0;
+  ThrustScale thrust_scale = kNominalThrust;
+  double thrust_scale_sigma = 0.0;
 };
 
 // Constraint tightening against the disturbances the flight lives with (flight_sw/guidance/README.md,
-// "Robustness margins"). All zero is the dissertation's nominal MPC; nav::derive_margins() sets them from
+// "Under disturbances"). All zero is the dissertation's nominal MPC; nav::derive_margins() sets them from
 // an error model. Each is applied on the prediction stages 1..N of the phase QPs and in the switching
-// rules, plus `estimate_sigmas` times the current estimate's uncertainty (position for the geometric
-// limits, velocity for v_max).
+// rules, plus `estimate_sigmas` times the current EstimateQuality: position sigma for the geometric
+// limits, velocity sigma for v_max, and the thrusters' force sigma for the input bounds (per thruster:
+// u_max min(1, s_j - k sigma_s)), for the braking before the overshoot plane and the acceleration before
+// v_max.
 struct Margins {
-  double input_fraction = 0.0;   // stages 1..N-1 plan with |dv|_inf <= u_max (1 - input_fraction)
+  double input_fraction = 0.0;   // every stage plans with |dv|_inf <= u_max (1 - input_fraction)
+  double plan_reserve_fraction = 0.0;  // and stages 1.. with (1 - plan_reserve_fraction) of that
   double keepout_m = 0.0;        // rendezvous: keep-out planes at r1 + keepout_m
   double overshoot_m = 0.0;      // approach: docking-axis distance >= r2 + overshoot_m
   double approach_cone_m = 0.0;  // approach: the soft corridor penalty starts this far inside the faces
   double docking_cone_m = 0.0;   // docking: hard cone H (rho - port) <= -docking_cone_m
   double v_max_mps = 0.0;        // docking: |v|_inf <= v_max - v_max_mps
   double estimate_sigmas = 0.0;  // each limit above also moves in by this many estimate sigmas
+  // Rendezvous -> approach only when the chaser, moving towards a corridor face, can stop before it with
+  // this fraction of the approach phase's planned deceleration (0: no such check).
+  double approach_entry_brake_fraction = 0.0;
   // Between two samples a spinning target's corridor turns by omega Ts while the chaser moves on a
   // chord: the corridor margin grows by rotating_cone_factor |rho_0| (omega Ts)^2 on a spinning target.
   double rotating_cone_factor = 0.0;

@@ -109,9 +109,8 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
   n_ = params_.mean_motion_rad_s();
   one_norm_ = (phase_ == Phase::Rendezvous && params_.rendezvous_objective == RendezvousObjective::OneNorm);
   cone_slacks_ = (phase_ != Phase::Docking) && pp.lambda > 0.0;
-  const double centroid_s =
-      params_.finite_burns ? std::min(0.5 * max_pulse_s(u_max_, params_.thrusters), 0.5 * Ts_) : 0.0;
-  cw_burn_model(n_, Ts_, centroid_s, A_, B_);
+  centroid_s_ = params_.finite_burns ? std::min(0.5 * max_pulse_s(u_max_, params_.thrusters), 0.5 * Ts_) : 0.0;
+  cw_burn_model(n_, Ts_, centroid_s_, A_, B_);
   Qw_ = pp.Q_diag.asDiagonal();
   Rw_ = pp.R_diag;
   if (pp.terminal_weight == TerminalWeight::Dare && !one_norm_)
@@ -145,10 +144,7 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
     if (L.box_row >= 0) {
       qp_.D[i].block<3, 3>(L.box_row, 0).setIdentity();
       qp_.D[i].block<3, 3>(L.box_row + 3, 0) = -Eigen::Matrix3d::Identity();
-      // Stage 0 is what is commanded now; later stages plan with the authority left after the thrust
-      // error margin, so that the plan stays flyable when the thrusters deliver less than nominal.
-      const double bound = i == 0 ? u_max_ : u_max_ * (1.0 - params_.margins.input_fraction);
-      qp_.d[i].segment<6>(L.box_row).setConstant(bound);
+      // Bounds are set per build (fill_input_box): they follow what the thrusters are known to deliver.
     }
     if (L.slack_col >= 0) {
       qp_.r[i].segment<4>(L.slack_col).setConstant(pp.lambda);
@@ -194,9 +190,10 @@ int PhaseQp::cone_row(int i) const { return stage(i).cone_row; }
 int PhaseQp::velocity_row(int i) const { return stage(i).vel_row; }
 int PhaseQp::elastic_offset(int i) const { return stage(i).elastic_col; }
 
-void PhaseQp::build(const Vector6d& x0, const TargetState& target, const StateUncertainty& u) {
+void PhaseQp::build(const Vector6d& x0, const TargetState& target, const EstimateQuality& quality) {
   x0_ = x0;
-  uncertainty_ = u;
+  quality_ = quality;
+  for (int i = 0; i < N_; ++i) fill_input_box(i);
   switch (phase_) {
     case Phase::Rendezvous:
       if (one_norm_)
@@ -207,6 +204,26 @@ void PhaseQp::build(const Vector6d& x0, const TargetState& target, const StateUn
     case Phase::Approach: build_approach(x0, target); break;
     case Phase::Docking:
     case Phase::Docked: build_docking(x0, target); break;
+  }
+}
+
+// |dv| bounds of stage i per thruster direction: what thruster j is known to deliver at its longest pulse,
+// s_j - k sigma_s of nominal (never more than u_max, the guidance's own limit), less the static margin;
+// later stages keep a reserve on top, so that the next plan can absorb what this period's disturbances
+// did to the state (a plan that rides the limit of its authority jumps, or fails, when a few centimetres
+// are off). The allocation lengthens the pulses of a weak thruster, so a plan within these bounds is flown.
+void PhaseQp::fill_input_box(int i) {
+  const int row = stage(i).box_row;
+  if (row < 0) return;
+  const Margins& m = params_.margins;
+  const double common = u_max_ * (1.0 - m.input_fraction) * (i == 0 ? 1.0 : 1.0 - m.plan_reserve_fraction);
+  const double k_sigma = m.estimate_sigmas * quality_.thrust_scale_sigma;
+  for (int axis = 0; axis < 3; ++axis) {
+    for (int sign = 0; sign < 2; ++sign) {  // rows +axis, then -axis; thrusters +axis = 2 axis, -axis = 2 axis + 1
+      const double s = quality_.thrust_scale[2 * axis + sign];
+      const double deliverable = std::isfinite(s) ? std::clamp(s - k_sigma, 0.5, 1.0) : 0.5;
+      qp_.d[i](row + 3 * sign + axis) = common * deliverable;
+    }
   }
 }
 
@@ -279,7 +296,9 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
   const double turn = omega_lvlh(target).norm() * Ts_;
   const double turning = params_.margins.rotating_cone_factor * turn * turn;
   const double cone_margin = params_.margins.approach_cone_m + estimate_margin_m() + turning * x0.head<3>().norm();
-  const double plane_m = params_.approach_stop_m + params_.margins.overshoot_m + estimate_margin_m() +
+  // The braking burn before a sample may be short by k sigma_s of it: (Ts - t_c) of that velocity.
+  const double braking = params_.margins.estimate_sigmas * quality_.thrust_scale_sigma * u_max_ * (Ts_ - centroid_s_);
+  const double plane_m = params_.approach_stop_m + params_.margins.overshoot_m + estimate_margin_m() + braking +
                          turning * params_.approach_stop_m;
   fill_setpoints(target, params_.approach_stop_m + params_.approach_setpoint_offset_m);
   for (int i = 0; i <= N_; ++i) {
@@ -304,7 +323,7 @@ void PhaseQp::build_docking(const Vector6d& x0, const TargetState& target) {
   const PhaseParams& pp = params_.docking;
   const Margins& m = params_.margins;
   const double cone_margin = m.docking_cone_m + estimate_margin_m();
-  const double v_bound = params_.v_max_mps - m.v_max_mps - m.estimate_sigmas * uncertainty_.velocity_mps;
+  const double v_bound = params_.v_max_mps - m.v_max_mps - m.estimate_sigmas * quality_.velocity_mps;
   const Eigen::Vector3d w = omega_lvlh(target);
   for (int i = 0; i <= N_; ++i) {
     const Eigen::Quaterniond q_i = attitude_after(target, i * Ts_);

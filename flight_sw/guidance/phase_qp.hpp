@@ -40,9 +40,9 @@ class PhaseQp {
   // docking cone and |v|_inf) made elastic: the QP the guidance solves when the nominal one is infeasible.
   PhaseQp(Phase phase, const GuidanceParams& params, bool recovery = false);
 
-  // Fill the QP for the chaser state x0 (LVLH) with the target as it is at the solve time; `u` is the
-  // estimate's uncertainty, which moves the margined limits in by margins.estimate_sigmas of it.
-  void build(const Vector6d& x0, const TargetState& target, const StateUncertainty& u = {});
+  // Fill the QP for the chaser state x0 (LVLH) with the target as it is at the solve time; `quality`
+  // says how well x0 and the thrusters are known (the margins and input bounds follow it).
+  void build(const Vector6d& x0, const TargetState& target, const EstimateQuality& quality = {});
 
   Phase phase() const { return phase_; }
   int N() const { return N_; }
@@ -74,7 +74,7 @@ class PhaseQp {
   void build_rendezvous_one_norm(const Vector6d& x0, const TargetState& target);
   void build_approach(const Vector6d& x0, const TargetState& target);
   void build_docking(const Vector6d& x0, const TargetState& target);
-  double estimate_margin_m() const { return params_.margins.estimate_sigmas * uncertainty_.position_m; }
+  double estimate_margin_m() const { return params_.margins.estimate_sigmas * quality_.position_m; }
   void fill_input_box(int stage);
   void fill_keepout(const Vector6d& x0, const TargetState& target);
   void fill_setpoints(const TargetState& target, double range_m);
@@ -96,7 +96,8 @@ class PhaseQp {
   std::vector<Vector6d> reference_;
   double keepout_radius_used_ = 0.0;
   KeepoutPlanes keepout_plan_;
-  StateUncertainty uncertainty_;  // of the last build's x0
+  EstimateQuality quality_;  // of the last build's x0
+  double centroid_s_ = 0.0;  // where the prediction puts each period's impulse
 };
 
 // Solution of the discrete algebraic Riccati equation P = Q + A'PA - A'PB (R + B'PB)^-1 B'PA

@@ -20,17 +20,22 @@ struct ErrorModel {
 };
 
 // Margins covering `errors` for a guidance with these parameters (k = errors.sigmas):
-//   input_fraction  = k sigma_w         stages 1.. plan with what the thrusters deliver at -k sigma
-//   estimate_sigmas = k                 every geometric limit moves in by k sigma_p of the current
-//                                       estimate, v_max by k sigma_v (the filter's covariance, online)
+//   estimate_sigmas = k                 online, from the navigation filter's covariance: every geometric
+//                                       limit moves in by k sigma_p, v_max by k sigma_v; each thruster's
+//                                       input bound is u_max (s_j - k sigma_s) (s_j its estimated
+//                                       relative force, sigma_s that estimate's error, sigma_w before it
+//                                       is learnt); the overshoot plane by k sigma_s u_max (Ts - t_c) and
+//                                       v_max by k sigma_s u_max,d (a burn off by k sigma_s of it)
+//   plan_reserve_fraction = 0.1         stages 1.. leave 10 % of that authority to the next plan
+//   approach_entry_brake_fraction = 0.5 rendezvous -> approach only when half the approach phase's
+//                                       deceleration stops the motion towards a corridor face before it
+//   approach_cone_m = u_max,a t_c       a lateral burn shorter than a full pulse acts up to t_c earlier
+//                                       than the prediction assumes
 //   keepout_m       = (1 m/s Ts_r)^2 / (8 r1)   the sagitta of a period's chord round the sphere
 //   rotating_cone_factor = 2.5          a spinning target's corridor and plane turn between samples
 //   v_max_mps       = dv of one minimum impulse bit + 3 n^2 (r2 + 2 m) Ts_d: a correction smaller than
 //                     the bit is not fired, and near r2 the radial CW term alone speeds the chaser up
 //                     by that much within one docking period
-//   overshoot_m    += k sigma_w u_max,a (Ts_a - t_c)  the braking burn before a sample is short by up to
-//                                                     k sigma_w of it (t_c: its centroid)
-//   v_max_mps      += k sigma_w u_max,d               likewise an accelerating docking burn
 // The keep-out, rotating and first v_max terms are discretisation effects and apply to a noise-free run too.
 guidance::Margins derive_margins(const ErrorModel& errors, const guidance::GuidanceParams& params);
 

@@ -57,7 +57,8 @@ void NavFilter::command(double t_s, const Eigen::Vector3d& dv_lvlh_mps, const st
 void NavFilter::publish(NavUpdate why) {
   est_.x = s_.head<6>();
   est_.P = Ps_.topLeftCorner<6, 6>();
-  est_.thrust_error = s_.tail<6>();
+  est_.thrust_error = s_.tail<6>().cwiseMax(-0.3).cwiseMin(0.3);  // what the allocation may rely on
+  est_.thrust_error_sigma = std::sqrt(Ps_.bottomRightCorner<6, 6>().diagonal().maxCoeff());
   est_.update = why;
 }
 
@@ -118,10 +119,12 @@ const NavEstimate& NavFilter::update(double t_s, const Vector6d& z) {
     publish(NavUpdate::Invalid);
     return est_;
   }
-  if (p_.passthrough()) {
+  if (p_.passthrough()) {  // nothing is estimated: the thrusters are known only to their prior
     s_.head<6>() = z;
+    s_.tail<6>().setZero();
     Ps_.setZero();
     Ps_.topLeftCorner<6, 6>() = R_;
+    Ps_.bottomRightCorner<6, 6>().diagonal().setConstant(p_.thrust_error_sigma * p_.thrust_error_sigma);
     t_ = t_s;
     initialised_ = true;
     command_pending_ = false;

@@ -70,7 +70,8 @@ using Matrix12d = Eigen::Matrix<double, 12, 12>;
 struct NavEstimate {
   Vector6d x = Vector6d::Zero();                  // relative state [m, m/s], LVLH
   Matrix6d P = Matrix6d::Zero();                  // its covariance
-  Eigen::Matrix<double, 6, 1> thrust_error = Eigen::Matrix<double, 6, 1>::Zero();  // b, fractions
+  Eigen::Matrix<double, 6, 1> thrust_error = Eigen::Matrix<double, 6, 1>::Zero();  // b, fractions (clamped to +-0.3)
+  double thrust_error_sigma = 0.0;  // 1-sigma of b, worst thruster
   NavUpdate update = NavUpdate::Initialised;
   double innovation_chi2 = 0.0;  // squared Mahalanobis distance of the last innovation
 };
@@ -80,8 +81,8 @@ class NavFilter {
   NavFilter(const NavFilterParams& params, double mean_motion_rad_s);
   void reset() { initialised_ = false; rejections_ = 0; command_pending_ = false; }
 
-  // The command issued at time t_s: nominal delta-v per LVLH axis and the pulse widths
-  // (+x, -x, +y, -y, +z, -z) that realise it; the burn starts at t_s.
+  // The command issued at time t_s: the delta-v per LVLH axis its pulses give at nominal force
+  // (F t / m) and the pulse widths (+x, -x, +y, -y, +z, -z); the burn starts at t_s.
   void command(double t_s, const Eigen::Vector3d& dv_lvlh_mps, const std::array<double, 6>& pulse_s);
 
   // Fuse the measurement z (LVLH) taken at time t_s; returns the estimate to plan from.

@@ -155,16 +155,25 @@ void bind_guidance(py::module_& m) {
           "solver_warm_start", [](const PhaseParams& p) { return p.solver.warm_start; },
           [](PhaseParams& p, bool v) { p.solver.warm_start = v; });
 
+  py::class_<EstimateQuality>(m, "EstimateQuality", "How well the guidance knows its state and thrusters.")
+      .def(py::init<>())
+      .def_readwrite("position_m", &EstimateQuality::position_m, "1-sigma position error, worst axis")
+      .def_readwrite("velocity_mps", &EstimateQuality::velocity_mps, "1-sigma velocity error, worst axis")
+      .def_readwrite("thrust_scale", &EstimateQuality::thrust_scale, "relative force per thruster (+x, -x, ...)")
+      .def_readwrite("thrust_scale_sigma", &EstimateQuality::thrust_scale_sigma, "its 1-sigma, worst thruster");
+
   py::class_<Margins>(m, "Margins", "Constraint tightening against the error model (README: Robustness margins).")
       .def(py::init<>())
       .def_readwrite("input_fraction", &Margins::input_fraction)
+      .def_readwrite("plan_reserve_fraction", &Margins::plan_reserve_fraction)
       .def_readwrite("keepout_m", &Margins::keepout_m)
       .def_readwrite("overshoot_m", &Margins::overshoot_m)
       .def_readwrite("approach_cone_m", &Margins::approach_cone_m)
       .def_readwrite("docking_cone_m", &Margins::docking_cone_m)
       .def_readwrite("v_max_mps", &Margins::v_max_mps)
       .def_readwrite("rotating_cone_factor", &Margins::rotating_cone_factor)
-      .def_readwrite("estimate_sigmas", &Margins::estimate_sigmas);
+      .def_readwrite("estimate_sigmas", &Margins::estimate_sigmas)
+      .def_readwrite("approach_entry_brake_fraction", &Margins::approach_entry_brake_fraction);
 
   py::class_<GuidanceParams>(m, "GuidanceParams",
                              "Every guidance parameter; defaults from dissertation Table 3.1 and "
@@ -223,7 +232,8 @@ void bind_guidance(py::module_& m) {
       .def_property(
           "q_lvlh_body", [](const NavInput& n) { return wxyz(n.q_lvlh_body); },
           [](NavInput& n, const Eigen::Vector4d& q) { n.q_lvlh_body = quat(q); })
-      .def_readwrite("omega_body_rad_s", &NavInput::omega_body_rad_s);
+      .def_readwrite("omega_body_rad_s", &NavInput::omega_body_rad_s)
+      .def_readwrite("quality", &NavInput::quality, "how well x_lvlh and the thrusters are known");
 
   py::class_<Command>(m, "Command")
       .def_readonly("step", &Command::step)
@@ -232,6 +242,7 @@ void bind_guidance(py::module_& m) {
       .def_readonly("period_s", &Command::period_s)
       .def_readonly("dv_cmd_mps", &Command::dv_cmd_mps)
       .def_readonly("dv_alloc_mps", &Command::dv_alloc_mps)
+      .def_readonly("dv_nominal_mps", &Command::dv_nominal_mps)
       .def_property_readonly("pulse_s", [](const Command& c) { return Eigen::Matrix<double, 6, 1>(c.pulse_s.data()); })
       .def_readonly("status", &Command::status)
       .def_readonly("fallback", &Command::fallback)

@@ -54,10 +54,10 @@ void bind_nav(py::module_& m) {
           [](NavFilter& f, double t_s, const rvd::guidance::Vector6d& z) {
             const NavEstimate& e = f.update(t_s, z);
             return py::make_tuple(rvd::guidance::Vector6d(e.x), rvd::guidance::Matrix6d(e.P), e.update, e.innovation_chi2,
-                                  rvd::guidance::Vector6d(e.thrust_error));
+                                  rvd::guidance::Vector6d(e.thrust_error), e.thrust_error_sigma);
           },
           py::arg("t_s"), py::arg("z"),
-          "(x, P, update, innovation_chi2, thrust_error) after fusing z taken at t_s")
+          "(x, P, update, innovation_chi2, thrust_error, thrust_error_sigma) after fusing z taken at t_s")
       .def_property_readonly("gated", &NavFilter::gated)
       .def_property_readonly("reinitialisations", &NavFilter::reinitialisations);
 }
