@@ -52,7 +52,7 @@ CACHE_DIR = REPO_ROOT / "build" / "cycles"
 LLVM_MC = "llvm-mc-15"
 LLVM_MCA = "llvm-mca-15"
 STEADY_ITERATIONS = 21
-MODEL_VERSION = 3  # bump when the way block costs are computed changes (invalidates build/cycles)
+MODEL_VERSION = 3  # with the code of this module and asm_dataflow.py, keys the cache in build/cycles
 CACHE_FIELDS = ("load_acc", "load_l1_miss", "load_l2_miss", "store_acc", "store_l1_miss", "store_l2_miss",
                 "ifetch_lines", "ifetch_l1_miss", "ifetch_l2_miss", "l2_writebacks", "l1_writebacks")
 
@@ -80,6 +80,9 @@ class Region:
     counts: dict[int, int]    # block id -> executions
 
 
+MISS_FIELDS = ("load_l1_miss", "load_l2_miss", "store_l1_miss", "store_l2_miss", "ifetch_l1_miss", "ifetch_l2_miss")
+
+
 @dataclass
 class Profile:
     header: str
@@ -87,6 +90,20 @@ class Profile:
     regions: list[Region]
     process: Region | None
     cache_on: bool
+    block_misses: dict[int, tuple[int, ...]] = field(default_factory=dict)  # id -> MISS_FIELDS, whole process
+
+    def miss_rates(self) -> dict[str, tuple[float, ...]]:
+        """Misses per execution of each block (by block key) inside the solve regions: how a run
+        without the cache model borrows this run's memory behaviour."""
+        if not self.cache_on:
+            raise ValueError("miss rates need a profile made with the cache model on")
+        executions: dict[int, int] = {}
+        for r in self.regions:
+            for bid, n in r.counts.items():
+                executions[bid] = executions.get(bid, 0) + n
+        none = (0,) * len(MISS_FIELDS)
+        return {self.blocks[bid].key: tuple(x / n for x in self.block_misses.get(bid, none))
+                for bid, n in executions.items()}
 
 
 def read_profile(path: Path) -> Profile:
@@ -98,6 +115,7 @@ def read_profile(path: Path) -> Profile:
     process = None
     header = ""
     current: Region | None = None
+    misses: dict[int, tuple[int, ...]] = {}
     with opener(path, "rt") as f:
         for line in f:
             tag = line[:1]
@@ -111,6 +129,9 @@ def read_profile(path: Path) -> Profile:
                 parts = line.split()
                 nums = list(map(int, parts[1:]))
                 current = Region(tag, nums[0], nums[1], dict(zip(CACHE_FIELDS, nums[2:2 + len(CACHE_FIELDS)])), {})
+            elif tag == "M":
+                nums = list(map(int, line.split()[1:]))
+                misses[nums[0]] = tuple(nums[1:])
             elif tag == "C" and current is not None:
                 for item in line.split()[1:]:
                     bid, cnt = item.split(":")
@@ -120,7 +141,7 @@ def read_profile(path: Path) -> Profile:
                 else:
                     process = current
                 current = None
-    return Profile(header, blocks, regions, process, "cache on" in header)
+    return Profile(header, blocks, regions, process, "cache on" in header, misses)
 
 
 # ---- models ------------------------------------------------------------------------------------
@@ -150,6 +171,8 @@ class Correction:
     source: str
     how: str
     verified: bool
+    retire_ooo: bool = False        # completes out of program order (an in-order core does not wait for it)
+    llvm_retire_ooo: bool = False
 
     def matches(self, insn: asm_dataflow.Insn) -> bool:
         parts = insn.text.split(None, 1)
@@ -163,7 +186,8 @@ def _corrections(entry: dict) -> list[Correction]:
         out.append(Correction(re.compile(c["mnemonic"]), re.compile(c.get("operand", "")), c.get("latency"),
                               c.get("llvm_latency"), c.get("accumulate_latency"), c.get("llvm_accumulate_latency"),
                               c.get("occupancy"), c.get("llvm_occupancy"), c.get("unit"), " ".join(c["source"].split()),
-                              c.get("how", ""), c.get("verified", True)))
+                              c.get("how", ""), c.get("verified", True), c.get("retire_ooo", False),
+                              c.get("llvm_retire_ooo", False)))
     return out
 
 
@@ -327,8 +351,9 @@ def rewrite_for_mca(arch: str, lines: list[str], thumb: bool = True) -> tuple[li
             target = line.split(None, 1)[1]
             out.append(("bx\t" if target.strip().startswith("r") or target.strip() in ("lr", "ip") else "b\t") + target)
             n += 1
-        elif ins.reglist and base in ("push", "pop", "ldm", "ldmia", "ldmdb", "stm", "stmia", "stmdb", "ldmib", "stmib",
-                                      "ldmda", "stmda"):
+        elif ins.reglist and asm_dataflow._strip_arm_mnemonic(base)[0] in (
+                "push", "pop", "ldm", "ldmia", "ldmdb", "stm", "stmia", "stmdb", "ldmib", "stmib", "ldmda", "stmda"):
+            base = asm_dataflow._strip_arm_mnemonic(base)[0]
             regs = [_arm_reg_name(r) for r in ins.reglist]
             load = ins.is_load
             base_reg = "sp" if base in ("push", "pop") else _arm_reg_name(asm_dataflow._arm_regs(line.split(None, 1)[1])[0])
@@ -336,7 +361,7 @@ def rewrite_for_mca(arch: str, lines: list[str], thumb: bool = True) -> tuple[li
             regs = ["r12" if r == "pc" else r for r in regs]
             pairs = []
             plain = [r for r in regs if r not in ("sp", "pc")]
-            while len(plain) >= 2:
+            while thumb and len(plain) >= 2:   # T32 LDRD/STRD take any two registers, A32 only even/odd pairs
                 pairs.append((plain.pop(0), plain.pop(0)))
             op = "ldr" if load else "str"
             for k, (a, b) in enumerate(pairs):
@@ -405,21 +430,33 @@ class McaReject(Exception):
         self.instruction = instruction
 
 
-def _mca_blocks(triple: str, cpu: str, regions: dict[str, list[str]]) -> tuple[dict, dict, set[str]]:
-    """cold and steady llvm-mca results per region; instructions llvm-mca rejects are dropped (and
-    returned) so that one odd instruction does not stop the whole executable's pricing."""
-    rejected: set[str] = set()
+def _mnemonic(line: str) -> str:
+    return line.strip().split(None, 1)[0].lower() if line.strip() else ""
+
+
+def _mca_blocks(triple: str, cpu: str, regions: dict[str, list[str]],
+                known_unsupported: tuple[str, ...] = ()) -> tuple[dict, dict, set[str]]:
+    """cold and steady llvm-mca results per region. Instructions llvm-mca rejects are set aside by
+    mnemonic (and remembered per CPU in build/cycles/) so that one odd instruction does not stop
+    the whole executable's pricing; returns the mnemonics set aside."""
+    memo = CACHE_DIR / f"rejected-{cpu}-{triple}-{llvm_version()}.json"
+    rejected: set[str] = set(json.loads(memo.read_text())) if memo.exists() else set()
+    rejected |= set(known_unsupported)
+    stand_in = "nop" if triple.startswith("aarch64") else "mov\tr0, r0"
     while True:
-        stand_in = "nop" if triple.startswith("aarch64") else "mov\tr0, r0"
-        clean = {k: [ln for ln in v if ln.strip() not in rejected] or [stand_in] for k, v in regions.items()}
+        clean = {k: [ln for ln in v if _mnemonic(ln) not in rejected] or [stand_in] for k, v in regions.items()}
         try:
             cold = _mca_run(triple, cpu, clean, 1)
             steady = _mca_run(triple, cpu, clean, STEADY_ITERATIONS)
-            return cold, steady, rejected
+            break
         except McaReject as e:
-            if not e.instruction or e.instruction in rejected:
+            bad = _mnemonic(e.instruction)
+            if not bad or bad in rejected:
                 raise
-            rejected.add(e.instruction)
+            rejected.add(bad)
+    memo.parent.mkdir(parents=True, exist_ok=True)
+    memo.write_text(json.dumps(sorted(rejected)))
+    return cold, steady, rejected
 
 
 # ---- corrections -------------------------------------------------------------------------------
@@ -427,16 +464,22 @@ def _family(ins: asm_dataflow.Insn) -> str:
     return ins.mnemonic.split(".")[0]
 
 
-def _walk(insns: list[asm_dataflow.Insn], lat: list[float], acc_lat: list[float | None], passes: int,
-          in_order_width: int = 0) -> float:
-    """Cycles of `passes` back-to-back passes of the block by register dataflow alone.
+def _walk(insns: list[asm_dataflow.Insn], lat: list[float], acc_lat: list[float | None],
+          units: list[tuple[str, float] | None], passes: int, in_order_width: int = 0,
+          retire_ooo: list[bool] | None = None) -> float:
+    """Cycles of `passes` back-to-back passes of the block by register dataflow and the busy time of
+    the units the correction table names.
 
     in_order_width = 0: dataflow order (an out-of-order core): the longest dependency chain.
     in_order_width = W: in-order issue, at most W instructions per cycle, each waiting for its
-    operands, as a scoreboarded in-order pipeline does; the end is the last result."""
+    operands (and its unit), as a scoreboarded in-order pipeline does, and, unless `retire_ooo`
+    marks it, writing back in program order (as llvm-mca's in-order pipeline does: an instruction
+    waits rather than complete before an older one). The end is the last result."""
     ready: dict[str, tuple[float, str | None, float]] = {}
+    unit_free: dict[str, float] = {}
     end = 0.0
     cycle, used = 0.0, 0
+    last_wb = 0.0
     for _ in range(passes):
         for k, ins in enumerate(insns):
             start = 0.0
@@ -446,13 +489,22 @@ def _walk(insns: list[asm_dataflow.Insn], lat: list[float], acc_lat: list[float 
                     continue
                 t_full, fam, t_acc = got
                 start = max(start, t_acc if (r == ins.acc and fam == _family(ins)) else t_full)
+            if units[k] is not None:
+                start = max(start, unit_free.get(units[k][0], 0.0))
             if in_order_width:
+                ordered = not (retire_ooo and retire_ooo[k])
+                if ordered and start + lat[k] < last_wb:
+                    start = last_wb - lat[k]
                 if start > cycle:
-                    cycle, used = math.ceil(start), 0
+                    cycle, used = start, 0
                 if used >= in_order_width:
-                    cycle, used = cycle + 1, 0
+                    cycle, used = math.floor(cycle) + 1, 0
                 start = cycle
                 used += 1
+                if ordered:
+                    last_wb = max(last_wb, start + lat[k])
+            if units[k] is not None:
+                unit_free[units[k][0]] = start + units[k][1]
             a = acc_lat[k]
             for d in ins.dests:
                 ready[d] = (start + lat[k], _family(ins) if a is not None else None,
@@ -461,22 +513,34 @@ def _walk(insns: list[asm_dataflow.Insn], lat: list[float], acc_lat: list[float 
     return end
 
 
+def _unit_bound(units: list[tuple[str, float] | None]) -> float:
+    """Busy cycles per pass of the busiest corrected unit."""
+    busy: dict[str, float] = {}
+    for u in units:
+        if u is not None:
+            busy[u[0]] = busy.get(u[0], 0.0) + u[1]
+    return max(busy.values(), default=0.0)
+
+
 def correct(insns: list[asm_dataflow.Insn], llvm_lat: list[float], corrections: list[Correction],
-            mca_cold: float, mca_steady: float, uops: float, dispatch: float,
-            in_order: bool) -> tuple[float, float, int]:
+            mca_cold: float, mca_steady: float, rthroughput: float, uops: float, dispatch: float,
+            in_order: bool, retire_ooo: re.Pattern | None = None) -> tuple[float, float, int]:
     """(cold, steady, instructions corrected): llvm-mca's figures moved by the published timings.
 
-    The block is walked with LLVM's latencies and with the corrected ones, in issue order on an
-    in-order core (every exposed stall counts), by dependency chains on an out-of-order one;
-    cold moves by the change of one pass, steady by the change per pass in a repeated block. A
-    corrected non-pipelined unit bounds the steady state from below (its busy cycles per pass);
-    where LLVM's unit bound set the steady state, the corrected one replaces it. Never below the
-    dispatch bound."""
+    The block is walked twice, with LLVM's and with the published latencies and unit busy times of
+    the corrected instructions (every other instruction keeps llvm-mca's latency in both walks):
+    in issue order on an in-order core, where every exposed stall counts, so the steady state and
+    the cold pass move by the walks' difference; by dependency chains on an out-of-order core,
+    where the corrected chain or unit replaces llvm-mca's steady state only if LLVM's version of
+    it was what set that steady state. Never below the dispatch bound."""
     lat0, lat1 = list(llvm_lat), list(llvm_lat)
     acc0: list[float | None] = [None] * len(insns)
     acc1: list[float | None] = [None] * len(insns)
-    units0: dict[str, float] = {}
-    units1: dict[str, float] = {}
+    unit0: list[tuple[str, float] | None] = [None] * len(insns)
+    unit1: list[tuple[str, float] | None] = [None] * len(insns)
+    # Classes that complete out of order in LLVM's model and in the published one alike.
+    ooo0 = [bool(retire_ooo and retire_ooo.search(ins.mnemonic)) for ins in insns]
+    ooo1 = list(ooo0)
     n = 0
     for k, ins in enumerate(insns):
         c = next((c for c in corrections if c.matches(ins)), None)
@@ -490,20 +554,29 @@ def correct(insns: list[asm_dataflow.Insn], llvm_lat: list[float], corrections: 
             acc0[k] = c.llvm_accumulate_latency
             acc1[k] = c.accumulate_latency
         if c.occupancy is not None and c.unit:
-            units0[c.unit] = units0.get(c.unit, 0.0) + (c.llvm_occupancy or 0.0)
-            units1[c.unit] = units1.get(c.unit, 0.0) + c.occupancy
+            unit0[k] = (c.unit, c.llvm_occupancy or 0.0)
+            unit1[k] = (c.unit, c.occupancy)
+        ooo0[k], ooo1[k] = c.llvm_retire_ooo, c.retire_ooo
     if n == 0:
         return mca_cold, mca_steady, 0
-    w = int(dispatch) if in_order else 0
-    p0, p1 = _walk(insns, lat0, acc0, 1, w), _walk(insns, lat1, acc1, 1, w)
-    r0 = _walk(insns, lat0, acc0, 3, w) - _walk(insns, lat0, acc0, 2, w)
-    r1 = _walk(insns, lat1, acc1, 3, w) - _walk(insns, lat1, acc1, 2, w)
     floor = uops / dispatch if dispatch else 0.0
-    u0, u1 = max(units0.values(), default=0.0), max(units1.values(), default=0.0)
-    steady = mca_steady + (r1 - r0)
-    if u0 and mca_steady <= u0 + 0.5:      # LLVM's unit bound set it: the corrected bound replaces it
-        steady = max(steady - (u0 - u1), floor)
-    steady = max(steady, u1, floor)
+    if in_order:
+        w = max(1, int(dispatch))
+        p0, p1 = _walk(insns, lat0, acc0, unit0, 1, w, ooo0), _walk(insns, lat1, acc1, unit1, 1, w, ooo1)
+        r0 = _walk(insns, lat0, acc0, unit0, 3, w, ooo0) - _walk(insns, lat0, acc0, unit0, 2, w, ooo0)
+        r1 = _walk(insns, lat1, acc1, unit1, 3, w, ooo1) - _walk(insns, lat1, acc1, unit1, 2, w, ooo1)
+        steady = max(mca_steady + (r1 - r0), floor)
+    else:
+        p0, p1 = _walk(insns, lat0, acc0, unit0, 1), _walk(insns, lat1, acc1, unit1, 1)
+        r0 = _walk(insns, lat0, acc0, unit0, 3) - _walk(insns, lat0, acc0, unit0, 2)
+        r1 = _walk(insns, lat1, acc1, unit1, 3) - _walk(insns, lat1, acc1, unit1, 2)
+        u0, u1 = _unit_bound(unit0), _unit_bound(unit1)
+        # llvm-mca's resource bound stands unless a corrected unit is what set it.
+        resources = rthroughput - (u0 - u1) if u0 and u0 >= rthroughput - 0.5 else rthroughput
+        if mca_steady <= r0 + 0.5:   # LLVM's version of a corrected chain or unit set the steady state
+            steady = max(r1, resources, floor)
+        else:
+            steady = max(mca_steady, r1)
     cold = max(mca_cold + (p1 - p0), steady)
     return cold, steady, n
 
@@ -564,7 +637,9 @@ class CycleModel:
 
     def fingerprint(self) -> str:
         """Changes when anything that prices blocks changes."""
-        text = json.dumps([MODEL_VERSION, self.cpu, self.entry, llvm_version()], sort_keys=True, default=str)
+        code = [Path(__file__).read_bytes(), Path(asm_dataflow.__file__).read_bytes()]
+        text = json.dumps([MODEL_VERSION, self.cpu, self.entry, llvm_version(),
+                           [hashlib.sha256(c).hexdigest() for c in code]], sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def _cache_file(self, exe: Path | None) -> Path:
@@ -608,21 +683,23 @@ class CycleModel:
             by_triple.setdefault(mca_triple, {})[f"b{b.key}"] = rewritten
             parsed[b.key] = (asm_dataflow.parse_block(self.arch, rewritten), n_rw)
         for triple, regions in by_triple.items():
-            cold, steady, rejected = _mca_blocks(triple, self.entry["mca_cpu"], regions)
+            cold, steady, rejected = _mca_blocks(triple, self.entry["mca_cpu"], regions,
+                                                 tuple(self.entry.get("mca_unsupported", ())))
             for name, lines in regions.items():
                 key = name[1:]
                 insns, n_rw = parsed[key]
-                unmodelled = sum(1 for ln in lines if ln.strip() in rejected)
+                unmodelled = sum(1 for ln in lines if _mnemonic(ln) in rejected)
                 c1 = cold[name]
                 s_total = steady[name]["cycles"]
                 mca_steady = (s_total - c1["cycles"]) / (STEADY_ITERATIONS - 1)
                 mca_cold = float(c1["cycles"])
-                kept = [ins for ins, ln in zip(insns, lines) if ln.strip() not in rejected]
+                kept = [ins for ins, ln in zip(insns, lines) if _mnemonic(ln) not in rejected]
                 lat = c1["latencies"]
                 if len(lat) != len(kept):  # the "nop" stand-in of an emptied region
                     kept, lat = [], []
                 cold_c, steady_c, n_corr = correct(kept, lat, self.corrections, mca_cold, mca_steady,
-                                                   c1["uops"], c1["dispatch"], self.in_order)
+                                                   c1["rthroughput"], c1["uops"], c1["dispatch"], self.in_order,
+                                                   re.compile(self.entry["retire_ooo"]) if "retire_ooo" in self.entry else None)
                 out[key] = [steady_c + unmodelled, cold_c + unmodelled, mca_steady, mca_cold, n_rw, unmodelled, n_corr]
         return out
 
@@ -641,15 +718,27 @@ class CycleModel:
         high = (all_l1 - all_l2) * l2_hi + all_l2 * (l2_hi + dram_hi)
         return low, high
 
-    def region_cycles(self, region: Region, costs: dict[int, BlockCost]) -> RegionCycles:
+    def region_cycles(self, region: Region, costs: dict[int, BlockCost],
+                      borrowed: dict[int, tuple[float, ...]] | None = None) -> RegionCycles:
+        """Cycles of one region. `borrowed`: block id -> misses per execution from another run of
+        the same executable with the cache model on (miss_rates), used when this run had it off."""
         steady = cold = 0.0
         unmodelled = 0
+        cache = dict(region.cache)
         for bid, n in region.counts.items():
             c = costs[bid]
             steady += n * c.steady
             cold += n * c.cold
             unmodelled += n * c.unmodelled
-        mem_lo, mem_hi = self.memory_cycles(region.cache)
+        if borrowed is not None:
+            for f in MISS_FIELDS:
+                cache[f] = 0.0
+            for bid, n in region.counts.items():
+                r = borrowed.get(bid)
+                if r is not None:
+                    for f, x in zip(MISS_FIELDS, r):
+                        cache[f] += n * x
+        mem_lo, mem_hi = self.memory_cycles(cache)
         low, high = steady + mem_lo, cold + mem_hi
         nominal = steady + 0.5 * (mem_lo + mem_hi)
         calibrated = False
@@ -661,13 +750,23 @@ class CycleModel:
         return RegionCycles(region.insns, steady, cold, mem_lo, mem_hi, low, nominal, high, calibrated, unmodelled)
 
 
-def profile_summary(model: CycleModel, exe: Path | None, profile: Profile) -> list[dict]:
-    """One row per solve region: step, instructions, core and memory cycles, interval, times."""
+def profile_summary(model: CycleModel, exe: Path | None, profile: Profile,
+                    miss_rates: dict[str, tuple[float, ...]] | None = None) -> list[dict]:
+    """One row per solve region: step, instructions, core and memory cycles, interval, times.
+    `miss_rates` (by block key, from Profile.miss_rates of a run with the cache model): the memory
+    term of a profile made without it."""
     costs = model.block_costs(exe, profile.blocks)
+    borrowed = None
+    if not profile.cache_on:
+        if miss_rates is None:
+            raise ValueError("profile made without the cache model: pass the miss rates of a run with it")
+        borrowed = {b.id: miss_rates[b.key] for b in profile.blocks.values() if b.key in miss_rates}
     rows = []
     clock = model.target.clock_hz
     for r in profile.regions:
-        c = model.region_cycles(r, costs)
+        c = model.region_cycles(r, costs, borrowed)
+        covered = 1.0 if borrowed is None else (
+            sum(n * profile.blocks[b].n_insns for b, n in r.counts.items() if b in borrowed) / max(1, r.insns))
         rows.append({"step": r.step, "instructions": r.insns, "cycles_low": c.low, "cycles_nominal": c.nominal,
                      "cycles_high": c.high, "core_steady": c.core_steady, "core_cold": c.core_cold,
                      "mem_low": c.mem_low, "mem_high": c.mem_high, "l1d_load_misses": r.cache["load_l1_miss"],
@@ -676,7 +775,9 @@ def profile_summary(model: CycleModel, exe: Path | None, profile: Profile) -> li
                      "loads": r.cache["load_acc"], "stores": r.cache["store_acc"],
                      "target_us_low": c.low / clock * 1e6, "target_us_nominal": c.nominal / clock * 1e6,
                      "target_us_high": c.high / clock * 1e6, "calibrated": c.calibrated,
-                     "unmodelled_insns": c.unmodelled_insns})
+                     "unmodelled_insns": c.unmodelled_insns,
+                     "memory_term": "borrowed miss rates" if borrowed is not None else "cache model",
+                     "miss_rate_coverage": covered})
     return rows
 
 
@@ -705,3 +806,48 @@ def main(argv=None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def price_run(profile_path: Path, exe: Path, model: CycleModel, out_csv: Path,
+              miss_rates_from: Path | None = None) -> Path:
+    """Writes the cycle model's figures per solve region of a profile to `out_csv` (with the model's
+    fingerprint in `out_csv`.json): computed again only when the profile or the model changed. The
+    profile is compressed to PROFILE.gz once priced. A profile made with the cache model also gets
+    its per-block miss rates in `out_csv` minus .csv + .miss-rates.json; a profile made without it
+    takes them from `miss_rates_from` (such a file of a run of the same executable)."""
+    import csv
+
+    profile_path = Path(profile_path)
+    gz = profile_path if profile_path.suffix == ".gz" else profile_path.with_name(profile_path.name + ".gz")
+    src = profile_path if profile_path.exists() else gz
+    if not src.exists():
+        raise FileNotFoundError(f"no block profile at {profile_path}")
+    rates_path = out_csv.with_suffix(".miss-rates.json")
+    stamp = {"model": model.fingerprint(), "profile_bytes": src.stat().st_size, "cpu": model.cpu,
+             "calibration": model.calibration,
+             "miss_rates_from": None if miss_rates_from is None else str(miss_rates_from),
+             "miss_rates_bytes": None if miss_rates_from is None else Path(miss_rates_from).stat().st_size}
+    side = out_csv.with_name(out_csv.name + ".json")
+    if out_csv.exists() and side.exists() and json.loads(side.read_text()).get("stamp") == stamp:
+        return out_csv
+    prof = read_profile(src)
+    rates = None
+    if prof.cache_on:
+        rates_path.write_text(json.dumps(prof.miss_rates()))
+    elif miss_rates_from is not None:
+        rates = {k: tuple(v) for k, v in json.loads(Path(miss_rates_from).read_text()).items()}
+    rows = profile_summary(model, exe, prof, rates)
+    tmp = out_csv.with_name(out_csv.name + ".tmp")
+    with tmp.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["step"])
+        w.writeheader()
+        w.writerows(rows)
+    tmp.replace(out_csv)
+    side.write_text(json.dumps({"stamp": stamp}))
+    if src == profile_path and profile_path.suffix != ".gz":
+        with profile_path.open("rb") as fin, gzip.open(gz, "wb", compresslevel=6) as fout:
+            shutil.copyfileobj(fin, fout)
+        profile_path.unlink()
+        stamp["profile_bytes"] = gz.stat().st_size
+        side.write_text(json.dumps({"stamp": stamp}))
+    return out_csv

@@ -21,6 +21,9 @@
  *   R step insns <cache counters>        a solve region (end marker), then its block counts in
  *   C id:count id:count ...              one line (only blocks that ran in the region)
  *   P 0 insns <cache counters>           the whole process, at exit, then its C line
+ *   M id load_l1 load_l2 store_l1 store_l2 ifetch_l1 ifetch_l2
+ *                                        (cache on) each block's misses inside the solve regions, at
+ *                                        exit: per-block miss rates for runs without the cache model
  * Cache counters (11 numbers): load_accesses load_l1_misses load_l2_misses store_accesses
  *   store_l1_misses store_l2_misses ifetch_lines ifetch_l1_misses ifetch_l2_misses
  *   l2_writebacks l1_writebacks
@@ -57,6 +60,7 @@ struct block {
   uint32_t hash;
   bool written;      /* its B line is in the output */
   uint8_t *bytes;
+  uint64_t miss[6];  /* cache on: load L1, load L2, store L1, store L2, ifetch L1, ifetch L2 */
 };
 
 static struct block *chunks[MAX_CHUNKS];
@@ -132,39 +136,45 @@ static bool cache_access(struct cache *c, uint64_t addr, bool write, bool *evict
   return false;
 }
 
-/* One data access of one line: L1D, then L2 on a miss. */
-static void data_line(uint64_t addr, bool store) {
+/* One data access of one line: L1D, then L2 on a miss; misses also charged to the block. */
+static void data_line(uint64_t addr, bool store, uint64_t *block_miss) {
   bool wb;
   if (store) stats.store_acc++; else stats.load_acc++;
   if (cache_access(&l1d, addr, store, &wb)) return;
   if (wb) stats.l1_writebacks++;
   if (store) stats.store_l1_miss++; else stats.load_l1_miss++;
+  if (in_region) block_miss[store ? 2 : 0]++;
   bool wb2;
   if (!cache_access(&l2, addr, false, &wb2)) {
     if (store) stats.store_l2_miss++; else stats.load_l2_miss++;
+    if (in_region) block_miss[store ? 3 : 1]++;
   }
   if (wb2) stats.l2_writebacks++;
 }
 
 static void on_mem(unsigned int vcpu_index, qemu_plugin_meminfo_t info, uint64_t vaddr, void *udata) {
-  (void)vcpu_index, (void)udata;
+  (void)vcpu_index;
   unsigned size = 1u << qemu_plugin_mem_size_shift(info);
   bool store = qemu_plugin_mem_is_store(info);
   uint64_t first = vaddr >> l1d.line_shift, last = (vaddr + size - 1) >> l1d.line_shift;
-  for (uint64_t l = first; l <= last; l++) data_line(l << l1d.line_shift, store);
+  for (uint64_t l = first; l <= last; l++) data_line(l << l1d.line_shift, store, (uint64_t *)udata);
 }
 
 static void on_tb_exec(unsigned int vcpu_index, void *udata) {
   (void)vcpu_index;
-  const struct block *b = udata;
+  struct block *b = udata;
   uint64_t first = b->vaddr >> l1i.line_shift, last = (b->vaddr + b->n_bytes - 1) >> l1i.line_shift;
   for (uint64_t l = first; l <= last; l++) {
     bool wb;
     stats.ifetch_lines++;
     if (cache_access(&l1i, l << l1i.line_shift, false, &wb)) continue;
     stats.ifetch_l1_miss++;
+    if (in_region) b->miss[4]++;
     bool wb2;
-    if (!cache_access(&l2, l << l1i.line_shift, false, &wb2)) stats.ifetch_l2_miss++;
+    if (!cache_access(&l2, l << l1i.line_shift, false, &wb2)) {
+      stats.ifetch_l2_miss++;
+      if (in_region) b->miss[5]++;
+    }
     if (wb2) stats.l2_writebacks++;
   }
 }
@@ -226,7 +236,6 @@ static void on_tb_translate(qemu_plugin_id_t id, struct qemu_plugin_tb *tb) {
     size_t sz = qemu_plugin_insn_size(insn);
     if (n_bytes + sz <= sizeof bytes) memcpy(bytes + n_bytes, qemu_plugin_insn_data(insn), sz);
     n_bytes += (uint32_t)sz;
-    if (cache_on) qemu_plugin_register_vcpu_mem_cb(insn, on_mem, QEMU_PLUGIN_CB_NO_REGS, QEMU_PLUGIN_MEM_RW, NULL);
   }
   if (n_bytes > sizeof bytes) {
     fprintf(stderr, "rvd block_profile: block at 0x%" PRIx64 " longer than %d bytes\n",
@@ -240,6 +249,10 @@ static void on_tb_translate(qemu_plugin_id_t id, struct qemu_plugin_tb *tb) {
     fprintf(stderr, "rvd block_profile: out of memory for blocks\n");
     abort();
   }
+  if (cache_on)
+    for (size_t i = 0; i < n; i++)
+      qemu_plugin_register_vcpu_mem_cb(qemu_plugin_tb_get_insn(tb, i), on_mem, QEMU_PLUGIN_CB_NO_REGS,
+                                       QEMU_PLUGIN_MEM_RW, b->miss);
   qemu_plugin_register_vcpu_tb_exec_inline(tb, QEMU_PLUGIN_INLINE_ADD_U64, &b->count, 1);
   if (cache_on) qemu_plugin_register_vcpu_tb_exec_cb(tb, on_tb_exec, QEMU_PLUGIN_CB_NO_REGS, b);
 }
@@ -308,6 +321,12 @@ static void at_exit(qemu_plugin_id_t id, void *userdata) {
   if (out) {
     static const struct cache_stats zero;
     write_record('P', 0, false, &zero);
+    for (uint32_t id = 0; cache_on && id < n_blocks; id++) {
+      const struct block *b = block_at(id);
+      if (b->miss[0] | b->miss[1] | b->miss[2] | b->miss[3] | b->miss[4] | b->miss[5])
+        fprintf(out, "M %u %" PRIu64 " %" PRIu64 " %" PRIu64 " %" PRIu64 " %" PRIu64 " %" PRIu64 "\n", id,
+                b->miss[0], b->miss[1], b->miss[2], b->miss[3], b->miss[4], b->miss[5]);
+    }
     fclose(out);
     out = NULL;
   }
