@@ -18,6 +18,8 @@ Per target:
   4. the cycle model's microbenchmarks for the target's CPU (bench/microbench/) beside the
      published figures;
   5. system mode (where QEMU has a machine): Case 1 twice with -icount: in-guest solve times identical;
+with rpi3 (and checks): the external anchor, OSQP's generated code for its quadcopter MPC example
+estimated for the Pi 3B beside the published figures (bench/osqp_anchor.py);
 then bench/report.py writes the report (HTML + PNG + CSV/JSON).
 
 Runs already finished with the same executable and settings are reused: a stopped campaign resumes.
@@ -311,6 +313,14 @@ def main(argv=None) -> int:
     if unknown:
         print(f"unknown target(s) {unknown}; known: {', '.join(targets.names())}", file=sys.stderr)
         return 2
+    from qemu import cycles
+
+    for name in spec.targets:  # every target needs a cycle model for its CPU: refuse before starting
+        t = targets.load(name, cpu=spec.cpu)
+        if t.emulated and t.cpu not in cycles.models():
+            print(f"{name}: no cycle model for CPU {t.cpu} in qemu/cycle_models.toml (LLVM has no llvm-mca "
+                  f"model for it and none is stated); CPUs with one: {', '.join(cycles.models())}", file=sys.stderr)
+            return 2
     for label in spec.scenarios:
         try:
             _scenario(label)
@@ -325,6 +335,12 @@ def main(argv=None) -> int:
                  f"horizon sets {spec.horizon_sets}")
         for name in spec.targets:
             campaign["targets"][name] = camp.target(name)
+        if spec.checks and "rpi3" in spec.targets and spec.cpu is None:
+            # the external anchor: OSQP's generated code on a Raspberry Pi 3B (bench/osqp_anchor.py)
+            from bench import osqp_anchor
+
+            res = osqp_anchor.run(out, opts=("-O2",))
+            camp.say(f"OSQP anchor: {res['summary']}")
         (out / "campaign.json").write_text(json.dumps(campaign, indent=1))
     from bench import report
 

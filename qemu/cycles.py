@@ -80,6 +80,7 @@ class Region:
     counts: dict[int, int]    # block id -> executions
 
 
+PER_INSTRUCTION = "per-instruction"  # miss_rates key of the fallback rate
 MISS_FIELDS = ("load_l1_miss", "load_l2_miss", "store_l1_miss", "store_l2_miss", "ifetch_l1_miss", "ifetch_l2_miss")
 
 
@@ -102,8 +103,12 @@ class Profile:
             for bid, n in r.counts.items():
                 executions[bid] = executions.get(bid, 0) + n
         none = (0,) * len(MISS_FIELDS)
-        return {self.blocks[bid].key: tuple(x / n for x in self.block_misses.get(bid, none))
-                for bid, n in executions.items()}
+        rates = {self.blocks[bid].key: tuple(x / n for x in self.block_misses.get(bid, none))
+                 for bid, n in executions.items()}
+        # For blocks the borrowing run executes and this one did not: the solves' misses per instruction.
+        insns = sum(r.insns for r in self.regions)
+        rates[PER_INSTRUCTION] = tuple(sum(r.cache[f] for r in self.regions) / max(1, insns) for f in MISS_FIELDS)
+        return rates
 
 
 def read_profile(path: Path) -> Profile:
@@ -755,18 +760,29 @@ def profile_summary(model: CycleModel, exe: Path | None, profile: Profile,
     """One row per solve region: step, instructions, core and memory cycles, interval, times.
     `miss_rates` (by block key, from Profile.miss_rates of a run with the cache model): the memory
     term of a profile made without it."""
-    costs = model.block_costs(exe, profile.blocks)
+    used = {b for r in profile.regions for b in r.counts}  # the solves' blocks only: a third of the process's
+    uncovered: set[int] = set()
+    costs = model.block_costs(exe, {b: profile.blocks[b] for b in used})
     borrowed = None
     if not profile.cache_on:
         if miss_rates is None:
             raise ValueError("profile made without the cache model: pass the miss rates of a run with it")
-        borrowed = {b.id: miss_rates[b.key] for b in profile.blocks.values() if b.key in miss_rates}
+        fallback = miss_rates.get(PER_INSTRUCTION)
+        borrowed = {}
+        for b in used:
+            r = miss_rates.get(profile.blocks[b].key)
+            if r is None and fallback is not None:
+                r = tuple(x * profile.blocks[b].n_insns for x in fallback)
+                uncovered.add(b)
+            if r is not None:
+                borrowed[b] = r
     rows = []
     clock = model.target.clock_hz
     for r in profile.regions:
         c = model.region_cycles(r, costs, borrowed)
-        covered = 1.0 if borrowed is None else (
-            sum(n * profile.blocks[b].n_insns for b, n in r.counts.items() if b in borrowed) / max(1, r.insns))
+        covered = 1.0 if borrowed is None else (  # instructions in blocks with rates of their own
+            sum(n * profile.blocks[b].n_insns for b, n in r.counts.items() if b in borrowed and b not in uncovered)
+            / max(1, r.insns))
         rows.append({"step": r.step, "instructions": r.insns, "cycles_low": c.low, "cycles_nominal": c.nominal,
                      "cycles_high": c.high, "core_steady": c.core_steady, "core_cold": c.core_cold,
                      "mem_low": c.mem_low, "mem_high": c.mem_high, "l1d_load_misses": r.cache["load_l1_miss"],

@@ -242,3 +242,49 @@ def test_memory_term_is_zero_without_misses_and_grows_with_them():
     lo, hi = model.memory_cycles(some)
     assert 0 < lo < hi
     assert model.memory_cycles(dict(some, load_l2_miss=20))[0] > lo
+
+
+def test_perf_stat_output_is_parsed_and_refused_without_a_pmu():
+    from bench import calibrate
+
+    # this machine's own `perf stat -x, -e cycles:u,instructions:u,L1-dcache-load-misses:u` (a VM: no PMU)
+    vm = ("# started on Tue Dec  1 19:41:58 2026\n\n<not supported>,,cycles:u,0,100.00,,\n"
+          "<not supported>,,instructions:u,0,100.00,,\n<not supported>,,L1-dcache-load-misses,0,100.00,,\n")
+    with pytest.raises(ValueError, match="no usable PMU"):
+        calibrate.parse_perf_csv(vm)
+    board = "1234567,,cycles:u,1000,100.00,,\n1000000,,instructions:u,1000,100.00,1.23,insn per cycle\n" \
+            "4567,,L1-dcache-load-misses:u,1000,100.00,,\n"
+    assert calibrate.parse_perf_csv(board) == {"cycles": 1234567.0, "instructions": 1000000.0,
+                                                "L1-dcache-load-misses": 4567.0}
+    cmd = calibrate.board_command("pi@rpi3", "/tmp", "rvd_flight_sw", ["--connect", "tcp/10.0.0.2:7447"])
+    assert cmd[:2] == ["ssh", "pi@rpi3"] and "perf stat -x, -o perf.csv -e cycles:u,instructions:u" in cmd[2]
+
+
+def test_calibration_factor_is_applied_and_marked(libs, tmp_path, monkeypatch):
+    """prepare (a real QEMU run of the ideal Case 1) then apply with a board measurement 1.25 x the
+    model's nominal cycles: the factor is written, the model scales its nominal figures by it and
+    marks them calibrated; a board run that executed other instructions is refused."""
+    from bench import calibrate
+
+    t = targets.load("rpi3")
+    if not shutil.which(t.compiler):
+        pytest.skip(f"{t.compiler} missing")
+    pred = calibrate.prepare("rpi3", out=tmp_path)
+    run = tmp_path / "rpi3" / pred["qemu_run"]
+    perf = tmp_path / "perf.csv"
+    cal = tmp_path / "calibration.toml"
+    perf.write_text(f"{pred['cycles_nominal'] * 1.25:.0f},,cycles:u,1,100.00,,\n"
+                    f"{pred['instructions'] * 1.003:.0f},,instructions:u,1,100.00,,\n"
+                    f"{pred['l1d_load_misses']},,L1-dcache-load-misses:u,1,100.00,,\n")
+    entry = calibrate.apply("rpi3", perf, run, "test board", out=tmp_path, calibration_file=cal)
+    assert entry["factor"] == pytest.approx(1.25, abs=1e-3)
+    monkeypatch.setattr(cycles, "CALIBRATION", cal)
+    model = cycles.CycleModel(t)
+    prof = cycles.read_profile(tmp_path / "rpi3" / "qemu.blocks")
+    costs = model.block_costs(tmp_path / "rpi3" / pred["exe"], prof.blocks)
+    c = model.region_cycles(prof.process, costs)
+    assert c.calibrated and c.nominal == pytest.approx(1.25 * pred["cycles_nominal"], rel=1e-3)
+    perf.write_text(f"{pred['cycles_nominal']:.0f},,cycles:u,1,100.00,,\n{pred['instructions'] * 1.05:.0f},,instructions:u,1,,\n"
+                    f"1,,L1-dcache-load-misses:u,1,,\n")
+    with pytest.raises(ValueError, match="not the same executable or inputs"):
+        calibrate.apply("rpi3", perf, run, "test board", out=tmp_path, calibration_file=cal)
