@@ -757,9 +757,10 @@ class CycleModel:
 
 def profile_summary(model: CycleModel, exe: Path | None, profile: Profile,
                     miss_rates: dict[str, tuple[float, ...]] | None = None) -> list[dict]:
-    """One row per solve region: step, instructions, core and memory cycles, interval, times.
-    `miss_rates` (by block key, from Profile.miss_rates of a run with the cache model): the memory
-    term of a profile made without it."""
+    """One row per step (the marker's step number): instructions, core and memory cycles, interval,
+    times. A guidance step that marks several solves (the phase QP, then a recovery QP) gets their
+    sum, as the flight software's own instruction count does. `miss_rates` (by block key, from
+    Profile.miss_rates of a run with the cache model): the memory term of a profile made without it."""
     used = {b for r in profile.regions for b in r.counts}  # the solves' blocks only: a third of the process's
     uncovered: set[int] = set()
     costs = model.block_costs(exe, {b: profile.blocks[b] for b in used})
@@ -794,7 +795,22 @@ def profile_summary(model: CycleModel, exe: Path | None, profile: Profile,
                      "unmodelled_insns": c.unmodelled_insns,
                      "memory_term": "borrowed miss rates" if borrowed is not None else "cache model",
                      "miss_rate_coverage": covered})
-    return rows
+    by_step: dict[int, dict] = {}
+    for row in rows:
+        acc = by_step.get(row["step"])
+        if acc is None:
+            by_step[row["step"]] = dict(row)
+            continue
+        n0, n1 = acc["instructions"], row["instructions"]
+        for k, v in row.items():
+            if k == "miss_rate_coverage":
+                acc[k] = (acc[k] * n0 + v * n1) / max(1, n0 + n1)
+            elif isinstance(v, (int, float)) and not isinstance(v, bool) and k != "step":
+                acc[k] += v
+        acc["regions"] = acc.get("regions", 1) + 1
+    for row in by_step.values():
+        row.setdefault("regions", 1)
+    return list(by_step.values())
 
 
 def main(argv=None) -> int:
