@@ -219,6 +219,7 @@ class RegionCycles:
     high: float
     calibrated: bool = False
     unmodelled_insns: int = 0
+    misses: dict = field(default_factory=dict)  # the cache counts the memory term used (own or borrowed)
 
     def time_s(self, clock_hz: float) -> tuple[float, float, float]:
         return self.low / clock_hz, self.nominal / clock_hz, self.high / clock_hz
@@ -752,7 +753,7 @@ class CycleModel:
             nominal *= factor
             low, high = min(low, nominal), max(high, nominal)
             calibrated = True
-        return RegionCycles(region.insns, steady, cold, mem_lo, mem_hi, low, nominal, high, calibrated, unmodelled)
+        return RegionCycles(region.insns, steady, cold, mem_lo, mem_hi, low, nominal, high, calibrated, unmodelled, cache)
 
 
 def profile_summary(model: CycleModel, exe: Path | None, profile: Profile,
@@ -786,9 +787,9 @@ def profile_summary(model: CycleModel, exe: Path | None, profile: Profile,
             / max(1, r.insns))
         rows.append({"step": r.step, "instructions": r.insns, "cycles_low": c.low, "cycles_nominal": c.nominal,
                      "cycles_high": c.high, "core_steady": c.core_steady, "core_cold": c.core_cold,
-                     "mem_low": c.mem_low, "mem_high": c.mem_high, "l1d_load_misses": r.cache["load_l1_miss"],
-                     "l1d_store_misses": r.cache["store_l1_miss"], "l2_misses": r.cache["load_l2_miss"] +
-                     r.cache["store_l2_miss"] + r.cache["ifetch_l2_miss"], "l1i_misses": r.cache["ifetch_l1_miss"],
+                     "mem_low": c.mem_low, "mem_high": c.mem_high, "l1d_load_misses": c.misses["load_l1_miss"],
+                     "l1d_store_misses": c.misses["store_l1_miss"], "l2_misses": c.misses["load_l2_miss"] +
+                     c.misses["store_l2_miss"] + c.misses["ifetch_l2_miss"], "l1i_misses": c.misses["ifetch_l1_miss"],
                      "loads": r.cache["load_acc"], "stores": r.cache["store_acc"],
                      "target_us_low": c.low / clock * 1e6, "target_us_nominal": c.nominal / clock * 1e6,
                      "target_us_high": c.high / clock * 1e6, "calibrated": c.calibrated,
