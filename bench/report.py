@@ -303,7 +303,7 @@ def _timing_model_html(out: Path, targets_meta: dict, rows: pd.DataFrame) -> str
         cal = cycles.calibrations().get(cpu)
         mem = entry["memory"]
         model_rows.append({
-            "target": t, "cpu": cpu, "clock MHz": m["clock_hz"] / 1e6,
+            "target": t, "cpu": cpu, "clock MHz": int(round(m["clock_hz"] / 1e6)),
             "pipeline model": f"llvm-mca -mcpu={entry['mca_cpu']}" if entry.get("engine") != "a8" else "own (Cortex-A8 TRM)",
             "corrections": len(entry.get("correction", [])),
             "L1D / L1I / L2": " / ".join(f"{g_[0] // 1024}K {g_[1]}-way {g_[2]}B" for g_ in
