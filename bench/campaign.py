@@ -8,11 +8,18 @@ against host_sim over Zenoh (lockstep), and turned into a report.
 
 Per target:
   1. cross-build the static flight executable (cross/, qemu/targets.toml);
-  2. user mode + instruction-counting plugin: every (scenario x horizon set) run, nonlinear truth
-     (J2, drag), thruster and sensor noise, control delay = estimated target time;
-  3. checks: Case 1 in the ideal setting (CW truth, no noise, impulsive, no delay) natively and twice
-     under QEMU: delta-v agreement and instruction counts identical run to run;
-  4. system mode (where QEMU has a machine): Case 1 twice with -icount: in-guest solve times identical;
+  2. checks: Case 1 in the ideal setting (CW truth, no noise, impulsive, no delay) natively and twice
+     under QEMU: delta-v agreement, instruction counts and cycle estimates identical run to run;
+  3. user mode + instruction counter + block profiler (qemu/plugin/): every (scenario x horizon
+     set) run, nonlinear truth (J2, drag), thruster and sensor noise, control delay = estimated
+     target time (instructions x the cycle model's mean CPI on the ideal Case 1 run);
+     each run's solves priced by the cycle model (qemu/cycles.py) into its cycles.csv; the cache
+     model runs in the ideal Case 1, the timing runs borrow its per-block miss rates;
+  4. the cycle model's microbenchmarks for the target's CPU (bench/microbench/) beside the
+     published figures;
+  5. system mode (where QEMU has a machine): Case 1 twice with -icount: in-guest solve times identical;
+with rpi3 (and checks): the external anchor, OSQP's generated code for its quadcopter MPC example
+estimated for the Pi 3B beside the published figures (bench/osqp_anchor.py);
 then bench/report.py writes the report (HTML + PNG + CSV/JSON).
 
 Runs already finished with the same executable and settings are reused: a stopped campaign resumes.
@@ -74,6 +81,18 @@ def _finished(run_dir: Path, fingerprint: str) -> bool:
     return m.get("status") == "finished" and m.get("campaign_fingerprint") == fingerprint
 
 
+def _mean_cpi(cycles_csv: Path) -> float:
+    """Nominal cycles over instructions of every priced solve of a run."""
+    import csv
+
+    with cycles_csv.open() as f:
+        rows = list(csv.DictReader(f))
+    insns = sum(float(r["instructions"]) for r in rows)
+    if not insns:
+        raise RuntimeError(f"{cycles_csv}: no counted solves to take a CPI from")
+    return sum(float(r["cycles_nominal"]) for r in rows) / insns
+
+
 def _fresh(run_dir: Path) -> None:
     """A run directory is written once: clear an unfinished or outdated one before re-running it."""
     if run_dir.exists():
@@ -129,61 +148,102 @@ class Campaign:
 
     # -- one target ------------------------------------------------------------------------------
     def target(self, name: str) -> dict:
-        from qemu import build, plugin, system, targets, user
+        from qemu import build, cycles, plugin, system, targets, user
 
         spec = self.spec
         t = targets.load(name, cpu=spec.cpu)
-        self.say(f"{t.name}: {t.arch} {t.cpu} at {t.clock_hz / 1e6:.0f} MHz (CPI {t.cpi.nominal} "
-                 f"[{t.cpi.low}-{t.cpi.high}]), building the flight executable")
+        model = cycles.CycleModel(t)
+        self.say(f"{t.name}: {t.arch} {t.cpu} at {t.clock_hz / 1e6:.0f} MHz (cycle model: {model.engine} "
+                 f"{model.entry.get('mca_cpu', t.cpu)}, {len(model.corrections)} corrections), building the flight executable")
         exe = build.cross_build(t)
         self.say(f"{t.name}: {exe.path.relative_to(REPO)} ({exe.size_bytes / 1024:.0f} KiB, static)")
         lib = plugin.build(download=True)
+        profile_lib = plugin.build_profile(download=False)
         tdir = self.runs_dir / t.build_name
         tdir.mkdir(parents=True, exist_ok=True)
         base = {"target": t.name, "build": t.build_name, "cpu": t.cpu, "arch": t.arch, "clock_hz": t.clock_hz,
-                "cpi": asdict(t.cpi), "exe_size_bytes": exe.size_bytes, "exe_sha": _sha(exe.path)}
+                "cpi": asdict(t.cpi), "exe_size_bytes": exe.size_bytes, "exe_sha": _sha(exe.path),
+                "block_profile": {"cache": model.cache_geometry}}
         fp_base = json.dumps([base, spec.truth, spec.noise, spec.seed], sort_keys=True)
 
-        def user_mode(run_dir: Path, plugin_log: Path):
+        def user_mode(run_dir: Path, plugin_log: Path, cache: bool = True):
             counter = plugin.InsnCounter(log=plugin_log, library=lib)
-            return lambda args: user.command(t, exe.path, args, plugin=counter)
+            profiler = plugin.BlockProfiler(out=run_dir.with_suffix(".blocks"),
+                                            cache=model.cache_geometry if cache else None, library=profile_lib)
+            return lambda args: user.command(t, exe.path, args, plugin=[counter, profiler])
 
-        info = {"target": base, "runs": [], "checks": {}}
-        # 2. the timing campaign
+        def priced(run_dir: Path, miss_rates_from: Path | None = None) -> Path:
+            return cycles.price_run(run_dir.with_suffix(".blocks"), exe.path, model, run_dir / "cycles.csv",
+                                    miss_rates_from=miss_rates_from)
+
+        info = {"target": base, "runs": [], "checks": {},
+                "cycle_model": {"cpu": model.cpu, "engine": model.engine, "fingerprint": model.fingerprint(),
+                                "calibrated": bool(model.calibration)}}
+        delay_cpi, delay_source = t.cpi.nominal, "registry CPI (qemu/targets.toml)"
+        # 2. ideal Case 1: native once, QEMU user mode twice (first: its CPI sets the timing runs' delay)
+        if spec.checks:
+            ideal_meta = {**base, "horizons": DEFAULT_HORIZONS, "kind": "check"}
+            native_dir = self.runs_dir / "native" / "case1-ideal"
+            fp = hashlib.sha256(f"native{_sha(REPO / 'build/native/flight_sw/rvd_flight_sw')}".encode()).hexdigest()[:16]
+            native = self.run(native_dir, "case1_vbar", fingerprint=fp, ideal=True,
+                              meta={"target": "host", "mode": "native", "kind": "check", "horizons": DEFAULT_HORIZONS})
+            reps = []
+            for rep in (1, 2):
+                run_dir = tdir / f"case1-ideal-{rep}"
+                fp = hashlib.sha256(f"{fp_base}ideal{rep}".encode()).hexdigest()[:16]
+                reps.append(self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True,
+                                     flight_command=user_mode(run_dir, run_dir.with_suffix(".insns")),
+                                     meta={**ideal_meta, "mode": "user"}))
+                priced(run_dir)
+                info["runs"].append(str(run_dir.relative_to(self.out)))
+            info["checks"]["native_vs_qemu"] = {"native_dv_mps": native.get("dv_total_mps"),
+                                                "qemu_dv_mps": [r.get("dv_total_mps") for r in reps],
+                                                "native_steps": native.get("steps"),
+                                                "qemu_steps": [r.get("steps") for r in reps],
+                                                "runs": [str(native_dir.relative_to(self.out)),
+                                                         *[f"runs/{t.build_name}/case1-ideal-{i}" for i in (1, 2)]]}
+            delay_cpi = round(_mean_cpi(tdir / "case1-ideal-1" / "cycles.csv"), 2)
+            delay_source = f"cycle model, mean nominal CPI of {t.build_name}/case1-ideal-1"
+            self.say(f"{t.name}: cycle model CPI {delay_cpi} on the ideal Case 1 (registry guess {t.cpi.nominal}): "
+                     "the timing runs' control delay uses it")
+        info["delay_cpi"] = {"cpi": delay_cpi, "source": delay_source}
+        # 3. the timing campaign. The cache model (a callback per memory access: several times the
+        # emulation time of a solve) ran in the ideal Case 1; these runs borrow its per-block miss
+        # rates (without checks: the first run of the campaign runs it).
+        reference = tdir / "case1-ideal-1" if spec.checks else None
         for horizons in spec.horizon_sets:
             hlabel = "N" + "-".join(map(str, horizons))
             for label in spec.scenarios:
                 run_dir = tdir / f"{label.replace(':', '')}-{hlabel}"
-                fp = hashlib.sha256(f"{fp_base}{label}{horizons}".encode()).hexdigest()[:16]
-                cfg = ServerConfig(delay_model="estimated", cpi=t.cpi.nominal, clock_hz=t.clock_hz)
+                cache = reference is None
+                fp = hashlib.sha256(f"{fp_base}{label}{horizons}{delay_cpi}{cache}".encode()).hexdigest()[:16]
+                cfg = ServerConfig(delay_model="estimated", cpi=delay_cpi, clock_hz=t.clock_hz)
                 self.run(run_dir, label, fingerprint=fp,
-                         flight_command=user_mode(run_dir, run_dir.with_suffix(".insns")),
+                         flight_command=user_mode(run_dir, run_dir.with_suffix(".insns"), cache=cache),
                          flight_args=["--horizon", ",".join(map(str, horizons))], config=cfg,
-                         meta={**base, "mode": "user", "horizons": horizons, "kind": "timing"})
+                         meta={**base, "mode": "user", "horizons": horizons, "kind": "timing",
+                               "delay_cpi": delay_cpi, "delay_cpi_source": delay_source,
+                               "memory_term": "cache model" if cache else
+                               f"miss rates of {reference.relative_to(self.out)}"})
+                priced(run_dir, None if cache else reference / "cycles.miss-rates.json")
+                reference = reference or run_dir
                 info["runs"].append(str(run_dir.relative_to(self.out)))
+        # 4. the cycle model's microbenchmarks for this CPU
+        if spec.checks:
+            from bench.microbench import run as microbench
+
+            try:
+                results = [asdict(r) | {"within": r.within} for r in microbench.measure(model.cpu)]
+            except (KeyError, RuntimeError) as exc:  # a CPU without microbenchmark support: say so
+                results = [{"cpu": model.cpu, "error": str(exc)}]
+            (self.out / f"microbench-{model.cpu}.json").write_text(json.dumps(results, indent=1))
+            ok = sum(1 for r in results if r.get("within"))
+            n_pub = sum(1 for r in results if r.get("within") is not None)
+            self.say(f"{t.name}: microbenchmarks {ok}/{n_pub} within the published figures' tolerance "
+                     f"({len(results) - n_pub} without a usable published figure)")
         if not spec.checks:
             return info
-        # 3. ideal Case 1: native once, QEMU user mode twice
-        ideal_meta = {**base, "horizons": DEFAULT_HORIZONS, "kind": "check"}
-        native_dir = self.runs_dir / "native" / "case1-ideal"
-        fp = hashlib.sha256(f"native{_sha(REPO / 'build/native/flight_sw/rvd_flight_sw')}".encode()).hexdigest()[:16]
-        native = self.run(native_dir, "case1_vbar", fingerprint=fp, ideal=True,
-                          meta={"target": "host", "mode": "native", "kind": "check", "horizons": DEFAULT_HORIZONS})
-        reps = []
-        for rep in (1, 2):
-            run_dir = tdir / f"case1-ideal-{rep}"
-            fp = hashlib.sha256(f"{fp_base}ideal{rep}".encode()).hexdigest()[:16]
-            reps.append(self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True,
-                                 flight_command=user_mode(run_dir, run_dir.with_suffix(".insns")),
-                                 meta={**ideal_meta, "mode": "user"}))
-            info["runs"].append(str(run_dir.relative_to(self.out)))
-        info["checks"]["native_vs_qemu"] = {"native_dv_mps": native.get("dv_total_mps"),
-                                            "qemu_dv_mps": [r.get("dv_total_mps") for r in reps],
-                                            "native_steps": native.get("steps"),
-                                            "qemu_steps": [r.get("steps") for r in reps],
-                                            "runs": [str(native_dir.relative_to(self.out)),
-                                                     *[f"runs/{t.build_name}/case1-ideal-{i}" for i in (1, 2)]]}
-        # 4. system mode, twice
+        # 5. system mode, twice
         if spec.system_mode and t.system_note:
             self.say(f"{t.name}: no system mode: {t.system_note}")
         if spec.system_mode and t.system is not None:
@@ -253,6 +313,14 @@ def main(argv=None) -> int:
     if unknown:
         print(f"unknown target(s) {unknown}; known: {', '.join(targets.names())}", file=sys.stderr)
         return 2
+    from qemu import cycles
+
+    for name in spec.targets:  # every target needs a cycle model for its CPU: refuse before starting
+        t = targets.load(name, cpu=spec.cpu)
+        if t.emulated and t.cpu not in cycles.models():
+            print(f"{name}: no cycle model for CPU {t.cpu} in qemu/cycle_models.toml (LLVM has no llvm-mca "
+                  f"model for it and none is stated); CPUs with one: {', '.join(cycles.models())}", file=sys.stderr)
+            return 2
     for label in spec.scenarios:
         try:
             _scenario(label)
@@ -267,6 +335,12 @@ def main(argv=None) -> int:
                  f"horizon sets {spec.horizon_sets}")
         for name in spec.targets:
             campaign["targets"][name] = camp.target(name)
+        if spec.checks and "rpi3" in spec.targets and spec.cpu is None:
+            # the external anchor: OSQP's generated code on a Raspberry Pi 3B (bench/osqp_anchor.py)
+            from bench import osqp_anchor
+
+            res = osqp_anchor.run(out, opts=("-O2",))
+            camp.say(f"OSQP anchor: {res['summary']}")
         (out / "campaign.json").write_text(json.dumps(campaign, indent=1))
     from bench import report
 

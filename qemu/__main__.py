@@ -27,6 +27,7 @@ def _list() -> int:
 
 def _prepare(names: list[str]) -> int:
     print(f"plugin: {plugin.build(download=True)}")
+    print(f"plugin: {plugin.build_profile(download=False)}")
     for name in names or targets.names():
         t = targets.load(name)
         if t.emulated and t.system:

@@ -16,24 +16,26 @@ import subprocess
 from pathlib import Path
 from typing import Sequence
 
-from .plugin import InsnCounter
+from .plugin import BlockProfiler, InsnCounter
 from .targets import Target
 
 
 def command(target: Target, exe: Path | str, args: Sequence[str] = (), *,
-            plugin: InsnCounter | None = None) -> list[str]:
-    """The command line that runs `exe` for `target` (natively for the host target)."""
+            plugin: InsnCounter | BlockProfiler | Sequence[InsnCounter | BlockProfiler] | None = None) -> list[str]:
+    """The command line that runs `exe` for `target` (natively for the host target). `plugin`:
+    one plugin's settings or several (e.g. the instruction counter and the block profiler)."""
+    plugins = [] if plugin is None else list(plugin) if isinstance(plugin, (list, tuple)) else [plugin]
     if not target.emulated:
-        if plugin is not None:
+        if plugins:
             raise ValueError("instruction counting needs QEMU: the host target runs natively")
         return [str(exe), *map(str, args)]
     cmd = [target.qemu_user, "-cpu", target.qemu_cpu]
-    if plugin is not None:
-        cmd += plugin.qemu_args()
+    for p in plugins:
+        cmd += p.qemu_args()
     return [*cmd, str(exe), *map(str, args)]
 
 
-def run(target: Target, exe: Path | str, args: Sequence[str] = (), *, plugin: InsnCounter | None = None,
+def run(target: Target, exe: Path | str, args: Sequence[str] = (), *, plugin=None,
         timeout_s: float | None = 600, **kwargs) -> subprocess.CompletedProcess:
     """Runs `exe` to completion and captures its output (text)."""
     return subprocess.run(command(target, exe, args, plugin=plugin), capture_output=True, text=True,

@@ -1,5 +1,6 @@
-"""The instruction-counting TCG plugin (insn_count.c beside this file), built against the
-qemu-plugin.h of the installed QEMU.
+"""The TCG plugins beside this file, built against the qemu-plugin.h of the installed QEMU:
+insn_count.c (instructions per solve, written back into the guest) and block_profile.c (executions
+per translation block per solve, and a cache model; read by qemu/cycles.py).
 
 No Debian binary package ships qemu-plugin.h, so build() fetches the qemu source package of
 exactly the installed version (apt-get source into build/apt), takes only
@@ -11,6 +12,7 @@ step is cached; a new QEMU version gets a new folder.
 """
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -22,6 +24,7 @@ from .. import debian
 from ..targets import REPO_ROOT
 
 SOURCE = Path(__file__).with_name("insn_count.c")
+PROFILE_SOURCE = Path(__file__).with_name("block_profile.c")
 CACHE = REPO_ROOT / "build" / "qemu-plugin"
 HEADER_MEMBER = "include/qemu/qemu-plugin.h"
 QEMU_PACKAGE = "qemu-user"  # the dynamic qemu-arm / qemu-aarch64 (plugins do not load in -static)
@@ -94,23 +97,51 @@ def api_version(header_path: Path) -> int:
     return int(m.group(1))
 
 
-def build(download: bool = True) -> Path | None:
-    """Path of the compiled plugin (built if missing or older than its source); None when the
-    header is not cached and download is False."""
+def build(download: bool = True, source: Path = SOURCE) -> Path | None:
+    """Path of the compiled plugin `source` (built if missing or older than its source); None
+    when the header is not cached and download is False."""
     hdr = header(download)
     if hdr is None:
         return None
-    lib = hdr.parent.parent / "librvd_insn_count.so"
-    if lib.exists() and lib.stat().st_mtime >= SOURCE.stat().st_mtime:
+    lib = hdr.parent.parent / f"librvd_{source.stem}.so"
+    if lib.exists() and lib.stat().st_mtime >= source.stat().st_mtime:
         return lib
-    tmp = lib.with_suffix(".tmp.so")
+    tmp = lib.with_suffix(f".{os.getpid()}.tmp.so")
     cmd = ["gcc", "-std=c11", "-O2", "-Wall", "-Wextra", "-fPIC", "-shared",
-           f"-I{hdr.parent}", str(SOURCE), "-o", str(tmp), "-lpthread"]
+           f"-I{hdr.parent}", str(source), "-o", str(tmp), "-lpthread"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"plugin build failed:\n{proc.stderr}")
     tmp.rename(lib)
     return lib
+
+
+def build_profile(download: bool = True) -> Path | None:
+    """The block-profile plugin (block_profile.c), built like build()."""
+    return build(download, PROFILE_SOURCE)
+
+
+@dataclass(frozen=True)
+class BlockProfiler:
+    """Settings of the block-profile plugin for one QEMU user-mode run (beside InsnCounter)."""
+
+    out: Path                          # the plugin's output (qemu/cycles.py reads it)
+    cache: "tuple[tuple[int, int, int], tuple[int, int, int], tuple[int, int, int]] | None" = None
+    #                                    (l1d, l1i, l2) as (size bytes, ways, line bytes); None: off
+    library: Path | None = None        # default: build_profile()
+
+    def qemu_args(self) -> list[str]:
+        if "," in str(self.out):
+            raise ValueError(f"profile path must not contain ',': {self.out}")
+        lib = self.library or build_profile()
+        if lib is None:
+            raise RuntimeError("block-profile plugin not built: run `python -m qemu.plugin`")
+        args = f"{lib},out={self.out}"
+        if self.cache is not None:
+            l1d, l1i, l2 = self.cache
+            args += ",cache=on" + "".join(f",{name}={g[0]}:{g[1]}:{g[2]}"
+                                          for name, g in (("l1d", l1d), ("l1i", l1i), ("l2", l2)))
+        return ["-plugin", args]
 
 
 def read_log(path: Path) -> list[tuple[int, int]]:
@@ -125,8 +156,9 @@ def read_log(path: Path) -> list[tuple[int, int]]:
 
 def main() -> int:
     lib = build(download=True)
+    profile = build_profile(download=False)
     hdr = header(download=False)
-    print(f"{lib}  (qemu-plugin.h API version {api_version(hdr)}, "
+    print(f"{lib}\n{profile}  (qemu-plugin.h API version {api_version(hdr)}, "
           f"QEMU {debian.installed_source_version(QEMU_PACKAGE)})")
     return 0
 
