@@ -117,6 +117,7 @@ std::map<std::string, std::function<double&(AppConfig&)>> scalar_params() {
   m["margins.keepout_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.keepout_m; };
   m["margins.estimate_sigmas"] = [](AppConfig& c) -> double& { return c.guidance.margins.estimate_sigmas; };
   m["margins.approach_entry_brake_fraction"] = [](AppConfig& c) -> double& { return c.guidance.margins.approach_entry_brake_fraction; };
+  m["margins.approach_speed_cap_mps"] = [](AppConfig& c) -> double& { return c.guidance.margins.approach_speed_cap_mps; };
   m["margins.rotating_cone_factor"] = [](AppConfig& c) -> double& { return c.guidance.margins.rotating_cone_factor; };
   m["margins.overshoot_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.overshoot_m; };
   m["margins.approach_cone_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.approach_cone_m; };

@@ -80,6 +80,9 @@ struct Margins {
   // Rendezvous -> approach only when the chaser, moving towards a corridor face, can stop before it with
   // this fraction of the approach phase's planned deceleration (0: no such check).
   double approach_entry_brake_fraction = 0.0;
+  // Approach phase: closing speed along the docking axis <= this (0: no cap), from stage 1 on, reached
+  // from the current closing speed at 90 % of the planned authority per period (so always reachable).
+  double approach_speed_cap_mps = 0.0;
   // Between two samples a spinning target's corridor turns by omega Ts while the chaser moves on a
   // chord: the corridor margin grows by rotating_cone_factor |rho_0| (omega Ts)^2 on a spinning target.
   double rotating_cone_factor = 0.0;

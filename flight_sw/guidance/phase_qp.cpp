@@ -35,6 +35,7 @@ PhaseQp::StageLayout PhaseQp::stage(int i) const {
       break;
     case Phase::Approach:
       if (i >= 1) L.keepout_row = row(1);  // the overshoot plane
+      if (i >= 1 && params_.margins.approach_speed_cap_mps > 0.0) L.speed_row = row(1);
       if (cone_slacks_) {
         L.slack_col = col(4);
         L.cone_row = row(8);
@@ -176,6 +177,7 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
       qp_.R[i](e, e) = 2.0 * params_.recovery_quadratic;  // keeps the Newton systems well conditioned
       qp_.D[i](L.elastic_row, e) = -1.0;  // -e <= 0
       if (L.keepout_row >= 0) qp_.D[i](L.keepout_row, e) = -1.0;
+      if (L.speed_row >= 0) qp_.D[i](L.speed_row, e) = -1.0;
       if (phase_ == Phase::Docking) {     // the docking cone is hard; the approach cone is already soft
         for (int k = 0; k < 4; ++k) qp_.D[i](L.cone_row + k, e) = -1.0;
         for (int k = 0; k < 6; ++k) qp_.D[i](L.vel_row + k, e) = -1.0;
@@ -300,6 +302,12 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
   const double braking = params_.margins.estimate_sigmas * quality_.thrust_scale_sigma * u_max_ * (Ts_ - centroid_s_);
   const double plane_m = params_.approach_stop_m + params_.margins.overshoot_m + estimate_margin_m() + braking +
                          turning * params_.approach_stop_m;
+  // Closing-speed cap, reached from the current closing speed at 90 % of the planned authority per period.
+  const double cap = params_.margins.approach_speed_cap_mps;
+  const double closing0 = -(target.q_lvlh_body * Eigen::Vector3d::UnitX()).dot(x0.tail<3>());
+  const double slowdown = 0.9 * u_max_ * (1.0 - params_.margins.input_fraction) *
+                          (1.0 - params_.margins.plan_reserve_fraction) *
+                          std::max(0.5, 1.0 - params_.margins.estimate_sigmas * quality_.thrust_scale_sigma);
   fill_setpoints(target, params_.approach_stop_m + params_.approach_setpoint_offset_m);
   for (int i = 0; i <= N_; ++i) {
     qp_.q[i].noalias() = -qp_.Q[i] * reference_[i];
@@ -310,6 +318,10 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
       keepout_normals_[i] = axis;
       qp_.C[i].block<1, 3>(L.keepout_row, 0) = -axis.transpose();
       qp_.d[i](L.keepout_row) = -plane_m;
+    }
+    if (L.speed_row >= 0) {  // -a' v <= cap_i
+      qp_.C[i].block<1, 3>(L.speed_row, 3) = -(q_i * Eigen::Vector3d::UnitX()).transpose();
+      qp_.d[i](L.speed_row) = std::max(cap, closing0 - i * slowdown);
     }
     if (L.cone_row >= 0) {  // the approach cone has its apex at the CoM; H rho - s <= -margin
       qp_.C[i].block<4, 3>(L.cone_row, 0) = pyramid_rows_lvlh(q_i, pp.los_half_angle_deg * kDeg);

@@ -31,7 +31,8 @@ class PhaseQp {
   // Input columns and inequality rows of one stage; -1 when the block is absent.
   struct StageLayout {
     int slack_col = -1, t_col = -1, w_col = -1, elastic_col = -1;
-    int box_row = -1, keepout_row = -1, cone_row = -1, t_row = -1, w_row = -1, vel_row = -1, elastic_row = -1;
+    int box_row = -1, keepout_row = -1, cone_row = -1, t_row = -1, w_row = -1, vel_row = -1, speed_row = -1,
+        elastic_row = -1;
     int nu = 0, nc = 0;
   };
   StageLayout stage(int i) const;  // blocks follow a fixed order; each present block takes the next columns/rows
