@@ -49,9 +49,9 @@ AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |
 
 def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
     import flight_sw
-    solver = forms.setdefault(("flight_sw", mode), flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, mode=mode, tol=1e-8,
+    solver = forms.setdefault(("flight_sw", mode), flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode=mode, tol=1e-8,
                                                                       warm_start=False))
-    r = solver.solve(*qp.args())
+    r = solver.solve(*qp.args(), **qp.kw())
     return r.objective, r.status, r.solve_time_us, math.nan
 
 

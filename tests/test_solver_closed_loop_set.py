@@ -108,7 +108,7 @@ def test_converged_mode_agrees_with_proxsuite_on_closed_loop_qps(qp_set):
     for key, qp in chosen:
         name, f_ref = reference(qp)
         used[name] += 1
-        ours = flight_sw.solve_ocp_qp(*qp.args(), tol=1e-8, mode="converged")
+        ours = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), tol=1e-8, mode="converged")
         if f_ref is None:  # infeasible by the LP
             assert ours.status == "infeasible", (key, ours.status)
             continue

@@ -103,12 +103,15 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
     double pres = detail::max_abs(w.rdyn, w.N * w.nx), dres = 0.0;
     for (int k = 0; k < w.rows; ++k) {
       if (w.act[k] == 0.0) continue;
-      pres = std::max(pres, w.gz[k] - w.sig[k] * w.soft[k] - w.dv[k]);
+      if (w.soft[k] == 0.0) pres = std::max(pres, w.gz[k] - w.dv[k]);  // soft rows hold with s*
       if (w.soft[k] > 0.0) dres = std::max(dres, std::abs(w.Zs[k] * w.sig[k] + w.zs[k] - w.lam[k] - w.mu[k]));
     }
     info_.primal_residual = pres;
     info_.dual_residual = std::max({dres, detail::max_abs(w.rdu, w.inputs), detail::max_abs(w.rdx + w.nx, w.N * w.nx)});
-    info_.objective = K.cost(w, qp, w.x, w.u) + detail::soft_cost(w, w.sig) + w.const_soft;
+    // The objective of the returned plan: soft rows at their least violation s* = max(g'z - d, 0)
+    // (the iterate's slacks are at most tol above it), kept in sigt for publish().
+    for (int k = 0; k < w.rows; ++k) w.sigt[k] = w.soft[k] > 0.0 ? std::max(w.gz[k] - w.dv[k], 0.0) : w.sig[k];
+    info_.objective = K.cost(w, qp, w.x, w.u) + detail::soft_cost(w, w.sigt) + w.const_soft;
     has_warm_ = st == Status::Solved || st == Status::MaxIter || st == Status::TimeLimit;
     publish(qp);
     if (st == Status::Infeasible && info_.iterations == 0) has_warm_ = false;
@@ -127,7 +130,7 @@ void FastMpcSolver::publish(const OcpQp& qp) {
     u_[i] = Eigen::Map<const Vector>(w.u + w.uo[i], w.nu[i]);
     for (int j = 0; j < w.nc[i]; ++j) lam_[i](j) = w.act[w.ro[i] + j] * w.lam[w.ro[i] + j];
     if (i < w.N) pi_[i] = Eigen::Map<const Vector>(w.pi + i * w.nx, w.nx);
-    for (int s = 0; s < dims_.soft_rows(i); ++s) sig_[i](s) = w.sig[w.ro[i] + qp.idxs[i][s]];
+    for (int s = 0; s < dims_.soft_rows(i); ++s) sig_[i](s) = w.sigt[w.ro[i] + qp.idxs[i][s]];
   }
 }
 

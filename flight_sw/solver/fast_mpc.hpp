@@ -57,7 +57,8 @@ class FastMpcSolver {
   // (N vectors) of the last solve. In FixedBarrier mode lam = kappa / slack, the barrier's duals.
   const std::vector<Vector>& lambda() const { return lam_; }
   const std::vector<Vector>& pi() const { return pi_; }
-  // Soft slacks (N+1 vectors, ns[i] each, in the order of idxs): each soft row's violation.
+  // Soft slacks (N+1 vectors, ns[i] each, in the order of idxs): each soft row's violation
+  // max(g'z - d, 0) at the returned plan.
   const std::vector<Vector>& soft_slack() const { return sig_; }
   void shift_warm_start();  // shift the last solution one stage: the warm start for the next period
   void reset_warm_start();  // forget the previous solution: the next solve starts cold
