@@ -147,6 +147,16 @@ class OcpQpData:
         return v
 
 
+def from_dict(d: dict, phase: str = "") -> OcpQpData:
+    """A QP from the dict flight_sw's guidance bindings return (PhaseQp.build, build_phase_qp, recorded QPs)."""
+    soft = {}
+    if "idxs" in d:
+        soft = {"idxs": [list(map(int, v)) for v in d["idxs"]], "zs": [np.asarray(v, float) for v in d["zs"]],
+                "Zs": [np.asarray(v, float) for v in d["Zs"]]}
+    return OcpQpData(d["A"], d["B"], d["b"], d["Q"], d["q"], d["R"], d["r"], d["C"], d["D"], d["d"],
+                     np.asarray(d["x0"], float), phase=phase, **soft)
+
+
 def expand_soft(qp: OcpQpData) -> OcpQpData:
     """The same QP with every soft row's slack as an input of its stage (zero in the dynamics, Hessian
     Zs, linear cost zs) and one more row -s <= 0 per slack: the form for solvers without soft rows.
