@@ -296,9 +296,9 @@ def warm_cold(seed: int = 0, random_starts: int = 6) -> None:
                     ph.solver_warm_start = warm
                 run = flight_sw.run_closed_loop(params, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"])
                 for ph, it, t in zip(run.phase, run.iterations, run.solve_time_us):
-                    name = str(ph).split(".")[-1].lower()
-                    if name == "docked" or it == 0:
+                    if int(ph) not in (1, 2, 3) or it == 0:  # docked, or no solve
                         continue
+                    name = ("rendezvous", "approach", "docking")[int(ph) - 1]
                     N = horizons[("rendezvous", "approach", "docking").index(name)]
                     rows[(name, N)]["warm" if warm else "cold"].append((it, t))
     print("closed loops warm vs cold (Cases 1-3 and random starts, CW plant), per phase and horizon")

@@ -231,3 +231,28 @@ def test_bench_runs_on_a_qp_set_file(tmp_path, capsys):
     rows = [line.split() for line in out.splitlines() if line.startswith("docking")]
     assert [r[2] for r in rows] == ["flight_sw", "proxsuite-sparse", "daqp"]
     assert all(r[8] == "0/2" for r in rows), out  # objectives agree with the reference
+
+
+@pytest.mark.parametrize("phase", ["rendezvous", "approach"])
+@pytest.mark.parametrize("N", [5, 30])
+def test_soft_rows_equal_the_qp_with_explicit_slack_inputs(phase, N):
+    """A soft row is the same as a slack input s >= 0 with the row's penalty (bench.qp_forms.expand_soft):
+    the same optimum, the same plan; the slacks reported are the violations at the returned plan."""
+    from bench.qp_forms import expand_soft
+    qp = make(phase, N, 3 * N + 1)
+    quad = [np.full(len(z), 0.5) for z in qp.zs]  # a quadratic penalty too
+    qp = OcpQpData(*qp.args()[:-1], qp.x0, qp.phase, qp.Ts, qp.idxs, qp.zs, quad)
+    soft = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw())
+    explicit = expand_soft(qp)
+    slack = flight_sw.solve_ocp_qp(*explicit.args())
+    assert soft.status == slack.status == "solved"
+    assert soft.objective == pytest.approx(slack.objective, rel=1e-7)
+    assert max(len(u) for u in soft.u) == 3  # the physical inputs only
+    for i in range(N):
+        # (the optimum is flat to ~sqrt(tol f / R): 1e-4 m/s is far below it mattering)
+        np.testing.assert_allclose(soft.u[i], slack.u[i][:3], atol=1e-4)
+    for i in range(N + 1):
+        rows = np.asarray(qp.idxs[i], int)
+        if len(rows):
+            viol = np.maximum(qp.C[i][rows] @ soft.x[i] + qp.D[i][rows] @ soft.u[i] - qp.d[i][rows], 0.0)
+            np.testing.assert_allclose(soft.s[i], viol, atol=1e-12)
