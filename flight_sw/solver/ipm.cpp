@@ -42,15 +42,14 @@ void recover_row_steps(Workspace& w, Step& s) {
     const double gdz = s.dt[k];
     double dsig = 0.0;
     if (w.soft[k] > 0.0) {
-      const double a = (w.lam[k] * w.rin[k] - w.rc[k]) / w.t[k] - w.rcs[k] / w.sig[k] - w.rsig[k];
-      dsig = (w.w[k] * gdz + a) / w.hs[k];
-      s.dmu[k] = (-w.rcs[k] - w.mu[k] * dsig) / w.sig[k];
+      dsig = (w.w[k] * gdz + w.asoft[k]) * w.inv_h[k];
+      s.dmu[k] = (-w.rcs[k] - w.mu[k] * dsig) * w.inv_s[k];
     } else {
       s.dmu[k] = 0.0;
     }
     s.dsig[k] = dsig;
     s.dt[k] = -w.rin[k] - gdz + dsig;
-    s.dlam[k] = (-w.rc[k] - w.lam[k] * s.dt[k]) / w.t[k];
+    s.dlam[k] = (-w.rc[k] - w.lam[k] * s.dt[k]) * w.inv_t[k];
   }
 }
 
@@ -179,14 +178,15 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     }
 
     for (int r = 0; r < M; ++r) {
-      const double wr = w.act[r] * w.lam[r] / w.t[r];
+      w.inv_t[r] = 1.0 / w.t[r];
+      const double wr = w.act[r] * w.lam[r] * w.inv_t[r];
       w.w[r] = wr;
       if (w.soft[r] > 0.0) {
-        const double nu = w.mu[r] / w.sig[r];
-        w.hs[r] = w.Zs[r] + wr + nu;
-        w.weff[r] = wr * (w.Zs[r] + nu) / w.hs[r];
+        w.inv_s[r] = 1.0 / w.sig[r];
+        const double nu = w.mu[r] * w.inv_s[r];
+        w.inv_h[r] = 1.0 / (w.Zs[r] + wr + nu);
+        w.weff[r] = wr * (w.Zs[r] + nu) * w.inv_h[r];
       } else {
-        w.hs[r] = 1.0;
         w.weff[r] = wr;
       }
     }
@@ -202,10 +202,11 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
           w.vrow[r] = 0.0;
           continue;
         }
-        const double a1 = (w.lam[r] * w.rin[r] - w.rc[r]) / w.t[r];
+        const double a1 = (w.lam[r] * w.rin[r] - w.rc[r]) * w.inv_t[r];
         if (w.soft[r] > 0.0) {
-          const double a = a1 - w.rcs[r] / w.sig[r] - w.rsig[r];
-          w.vrow[r] = a1 - w.w[r] / w.hs[r] * a;
+          const double a = a1 - w.rcs[r] * w.inv_s[r] - w.rsig[r];
+          w.asoft[r] = a;
+          w.vrow[r] = a1 - w.w[r] * w.inv_h[r] * a;
         } else {
           w.vrow[r] = a1;
         }
@@ -236,11 +237,12 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
       const Step& s = w.step;
       gap_aff += w.act[r] * (w.t[r] + amax_aff * s.dt[r]) * (w.lam[r] + amax_aff * s.dlam[r]);
       if (w.soft[r] > 0.0) gap_aff += (w.sig[r] + amax_aff * s.dsig[r]) * (w.mu[r] + amax_aff * s.dmu[r]);
-      w.dt_aff[r] = s.dt[r];
-      w.dlam_aff[r] = s.dlam[r];
-      w.dsig_aff[r] = s.dsig[r];
-      w.dmu_aff[r] = s.dmu[r];
     }
+    // Keep the predictor's row steps: swap them into the *_aff buffers (no copy).
+    std::swap(w.step.dt, w.dt_aff);
+    std::swap(w.step.dlam, w.dlam_aff);
+    std::swap(w.step.dsig, w.dsig_aff);
+    std::swap(w.step.dmu, w.dmu_aff);
     const double ratio = gap > 0.0 ? gap_aff / gap : 0.0;
     const double sigma = std::clamp(ratio * ratio * ratio, 0.0, 1.0);
     const double smu = std::max(sigma * mu, mu_floor);

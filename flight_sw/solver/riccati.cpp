@@ -195,7 +195,9 @@ struct StageKernels {
         MapM<NX, NX> PA(w.s_xx, n, n);
         PA.noalias() = P1.lazyProduct(A);
         MapM<NX, NX> F(w.s_xx2, n, n);
-        F.noalias() = A.transpose().lazyProduct(PA);  // A'PA; B'PB and B'PA are its blocks when B = A [0; I]
+        // A'PA (symmetric: the lower triangle, mirrored); B'PB and B'PA are its blocks when B = A [0; I].
+        for (int c = 0; c < n; ++c)
+          for (int r = c; r < n; ++r) F(r, c) = F(c, r) = A.col(r).dot(PA.col(c));
         Mxx += F;
         if (m > 0) {
           if (w.b_tail[i]) {
@@ -221,6 +223,14 @@ struct StageKernels {
       const double wk = w.weff[k];
       if (wk == 0.0) continue;
       const int b0 = w.ptr[k], bm = w.mid[k], be = i == 0 ? w.mid[k] : w.ptr[k + 1];
+      if (be - b0 == 1) {  // a bound row: one diagonal entry
+        const double v = w.val[b0];
+        if (b0 < bm)
+          Muu(w.col[b0], w.col[b0]) += wk * v * v;
+        else
+          Mxx(w.col[b0], w.col[b0]) += wk * v * v;
+        continue;
+      }
       for (int a = b0; a < be; ++a) {
         const double wa = wk * w.val[a];
         const int ca = w.col[a];
@@ -237,7 +247,12 @@ struct StageKernels {
       if (!cholesky<NU>(Muu, m)) return false;
       if (i > 0) {
         for (int c = 0; c < n; ++c) lower_solve(Muu, m, Mux.col(c));  // Y = L^-1 S_ux
-        Mxx.noalias() -= Mux.transpose().lazyProduct(Mux);           // P_i = M_xx - Y'Y
+        for (int c = 0; c < n; ++c)                                    // P_i = M_xx - Y'Y (symmetric)
+          for (int r = c; r < n; ++r) {
+            const double yy = Mux.col(r).dot(Mux.col(c));
+            Mxx(r, c) -= yy;
+            if (r != c) Mxx(c, r) -= yy;
+          }
       }
     }
     return true;
@@ -332,11 +347,9 @@ struct Solver {
         StageKernels<NX, NU>::residuals(w, qp, i, x, u, pi, lam, gscale);
     }
     g_mul_all(w, u, x, w.gz);
-    double cscale = 0.0;
-    for (int k = 0; k < w.rows; ++k) cscale = std::max({cscale, std::abs(w.dv[k]), std::abs(w.gz[k]) * w.act[k]});
-    for (int k = 0; k < w.rows; ++k)
-      if (w.soft[k] > 0.0) gscale = std::max(gscale, w.zs[k]);
-    w.grad_scale = std::max(1.0, gscale);
+    double cscale = w.d_max;
+    for (int k = 0; k < w.rows; ++k) cscale = std::max(cscale, std::abs(w.gz[k]) * w.act[k]);
+    w.grad_scale = std::max({1.0, gscale, w.zs_max});
     w.cons_scale = std::max(1.0, cscale);
   }
   static bool factorize(Workspace& w, const OcpQp& qp, double reg) {
@@ -403,7 +416,7 @@ const Kernels& kernels_for(const Workspace& w) {
 bool prepare_rows(Workspace& w, const OcpQp& qp, double tol) {
   bool ok = true;
   w.rows_active = w.soft_active = 0;
-  w.const_soft = 0.0;
+  w.const_soft = w.d_max = w.zs_max = 0.0;
   int nz = 0;
   for (int i = 0; i <= w.N; ++i) {
     if (i < w.N) w.b_tail[i] = is_a_tail(qp.A[i], qp.B[i]);
@@ -436,7 +449,8 @@ bool prepare_rows(Workspace& w, const OcpQp& qp, double tol) {
       if (any) {
         w.act[k] = 1.0;
         ++w.rows_active;
-        if (w.soft[k] > 0.0) ++w.soft_active;
+        w.d_max = std::max(w.d_max, std::abs(w.dv[k]));
+        if (w.soft[k] > 0.0) ++w.soft_active, w.zs_max = std::max(w.zs_max, w.zs[k]);
         continue;
       }
       // Constant row: on stage 0, C x0 <= d is data; a hard one that fails makes the QP infeasible,

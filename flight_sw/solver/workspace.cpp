@@ -54,7 +54,7 @@ void Workspace::carve(Arena& a) {
   u = a.take<double>(U);
   pi = a.take<double>(D);
   for (double** v : {&t, &lam, &sig, &mu, &dv, &zs, &Zs, &rin, &rsig, &gz, &w, &weff, &hs, &rc, &rcs, &vrow, &dt_aff,
-                     &dlam_aff, &dsig_aff, &dmu_aff, &sigt})
+                     &dlam_aff, &dsig_aff, &dmu_aff, &sigt, &inv_t, &inv_s, &inv_h, &asoft})
     *v = a.take<double>(M);
   rdx = a.take<double>(X);
   rdu = a.take<double>(U);

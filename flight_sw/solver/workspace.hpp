@@ -57,7 +57,8 @@ struct Workspace {
   double *val;
   int *ub_row, *lb_row;  // per input: the tightest hard bound row u_j <= . / u_j >= . (-1: none)
   int rows_active = 0, soft_active = 0;
-  double const_soft = 0.0;  // penalty of constant soft rows (x0 alone): part of the objective
+  double const_soft = 0.0;
+  double d_max = 0.0, zs_max = 0.0;  // per solve: max |d| over active rows, max soft penalty (problem scales)  // penalty of constant soft rows (x0 alone): part of the objective
 
   // Iterate.
   double *x, *u, *pi, *t, *lam, *sig, *mu;
@@ -68,6 +69,7 @@ struct Workspace {
   // Newton system weights: w = lam/t, the soft-eliminated weight, h = Zs + w + mu/sig; the
   // complementarity targets (rows, soft slacks) and the step QP's row term.
   double *w, *weff, *hs, *rc, *rcs, *vrow;
+  double *inv_t, *inv_s, *inv_h, *asoft;  // per iteration: 1/t, 1/s, 1/h; the soft rows' eliminated right-hand side
   // Step QP gradient.
   double *gx, *gu;
   // Riccati factors: cost-to-go P (nx x nx per stage), Cholesky L of the input block, Y = L^-1 S,
