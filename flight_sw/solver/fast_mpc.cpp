@@ -112,7 +112,8 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
     // (the iterate's slacks are at most tol above it), kept in sigt for publish().
     for (int k = 0; k < w.rows; ++k) w.sigt[k] = w.soft[k] > 0.0 ? std::max(w.gz[k] - w.dv[k], 0.0) : w.sig[k];
     info_.objective = K.cost(w, qp, w.x, w.u) + detail::soft_cost(w, w.sigt) + w.const_soft;
-    has_warm_ = st == Status::Solved || st == Status::MaxIter || st == Status::TimeLimit;
+    // A solve the clock stopped early leaves an iterate, not a plan: the next one starts cold.
+    has_warm_ = st == Status::Solved || st == Status::MaxIter;
     publish(qp);
     if (st == Status::Infeasible && info_.iterations == 0) has_warm_ = false;
   } else {

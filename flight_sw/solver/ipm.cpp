@@ -89,37 +89,58 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
   const double tol = S.tol;
   // Starting point. Cold: zero inputs, states rolled out through the dynamics. Warm: the previous
   // (shifted) plan. Row slacks and duals are pushed into the interior.
-  if (!warm) {
-    for (int k = 0; k < w.inputs; ++k) w.u[k] = 0.0;
-    for (int k = 0; k < N * nx; ++k) w.pi[k] = 0.0;
-    K.rollout(w, qp, w.x, w.u);
-  }
-  K.residuals(w, qp, w.x, w.u, w.pi, w.lam);  // for Gz and the cost gradient's scale
-  const double gs0 = w.grad_scale;
-  for (int k = 0; k < M; ++k) {
-    if (w.act[k] == 0.0) {
-      w.t[k] = 1.0;
-      w.lam[k] = w.mu[k] = 0.0;
-      continue;
+  auto start = [&](bool from_plan) {
+    if (!from_plan) {
+      for (int k = 0; k < w.inputs; ++k) w.u[k] = 0.0;
+      for (int k = 0; k < N * nx; ++k) w.pi[k] = 0.0;
+      K.rollout(w, qp, w.x, w.u);
     }
-    const bool soft = w.soft[k] > 0.0;
-    const double viol = w.gz[k] - w.dv[k];
-    if (!warm) {
-      // Slack as large as the row's residual (at least 1), duals at the cost gradient's scale; a soft
-      // row starts with its slack above the violation and its two duals splitting the penalty.
-      w.sig[k] = soft ? std::max(viol, 0.0) + 1.0 : 0.0;
-      w.t[k] = std::max(std::abs(w.sig[k] - viol), 1.0);
-      const double dual = soft && w.zs[k] > 0.0 ? 0.5 * w.zs[k] : gs0;
-      w.lam[k] = dual;
-      w.mu[k] = soft ? dual : 0.0;
-    } else {
-      const double push = warm_push * (1.0 + std::abs(w.dv[k]));
-      if (soft) w.sig[k] = std::max(w.sig[k], push), w.mu[k] = std::max(w.mu[k], warm_push);
-      else w.sig[k] = w.mu[k] = 0.0;
-      w.t[k] = std::max(w.sig[k] - viol, push);
-      w.lam[k] = std::max(w.lam[k], warm_push);
+    K.residuals(w, qp, w.x, w.u, w.pi, w.lam);  // for Gz and the cost gradient's scale
+    const double gs0 = w.grad_scale;
+    for (int k = 0; k < M; ++k) {
+      if (w.act[k] == 0.0) {
+        w.t[k] = 1.0;
+        w.lam[k] = w.mu[k] = 0.0;
+        continue;
+      }
+      const bool soft = w.soft[k] > 0.0;
+      const double viol = w.gz[k] - w.dv[k];
+      if (!from_plan) {
+        // Slack as large as the row's residual (at least 1), duals at the cost gradient's scale; a soft
+        // row starts with its slack above the violation and its two duals splitting the penalty.
+        w.sig[k] = soft ? std::max(viol, 0.0) + 1.0 : 0.0;
+        w.t[k] = std::max(std::abs(w.sig[k] - viol), 1.0);
+        const double dual = soft && w.zs[k] > 0.0 ? 0.5 * w.zs[k] : gs0;
+        w.lam[k] = dual;
+        w.mu[k] = soft ? dual : 0.0;
+      } else {
+        const double push = warm_push * (1.0 + std::abs(w.dv[k]));
+        if (soft) w.sig[k] = std::max(w.sig[k], push), w.mu[k] = std::max(w.mu[k], warm_push);
+        else w.sig[k] = w.mu[k] = 0.0;
+        w.t[k] = std::max(w.sig[k] - viol, push);
+        w.lam[k] = std::max(w.lam[k], warm_push);
+      }
     }
-  }
+    // A warm point's complementarity products can differ by many orders of magnitude (a shifted
+    // row that was active, a new row): lift the small ones to warm_centre x their mean, so the
+    // first steps are not blocked by one pair sitting at the boundary.
+    if (from_plan && S.warm_centre > 0.0) {
+      double sum = 0.0;
+      int n = 0;
+      for (int k = 0; k < M; ++k) {
+        if (w.act[k] == 0.0) continue;
+        sum += w.t[k] * w.lam[k], ++n;
+        if (w.soft[k] > 0.0) sum += w.sig[k] * w.mu[k], ++n;
+      }
+      const double floor = n > 0 ? S.warm_centre * sum / n : 0.0;
+      for (int k = 0; k < M; ++k) {
+        if (w.act[k] == 0.0) continue;
+        w.lam[k] = std::max(w.lam[k], floor / w.t[k]);
+        if (w.soft[k] > 0.0) w.mu[k] = std::max(w.mu[k], floor / w.sig[k]);
+      }
+    }
+  };
+  start(warm);
 
   const bool want_interior = mu_floor > 0.0;
   const int n_comp = w.rows_active + w.soft_active;
