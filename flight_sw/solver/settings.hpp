@@ -37,13 +37,9 @@ struct Settings {
   double correct_below = 0.5;
   // Warm start: row slacks and duals pushed at least this far inside (relative to the row's size).
   double warm_push = 1e-2;
-  // A warm start still farther than warm_restart_far * tol from the answer (residuals, gap) after
-  // warm_restart_after iterations restarts cold, once (0: never). Bounds the warm worst case at
-  // warm_restart_after + the cold one.
-  int warm_restart_after = 0;
-  // Warm start: complementarity products lifted to at least warm_centre x their mean (0: off).
+  // Warm start: complementarity products lifted to at least warm_centre x their mean (0: off;
+  // tuned on closed loops: 0.01 saves 6 % of the iterations, 0.1 more on average but raises maxima).
   double warm_centre = 0.01;
-  double warm_restart_far = 1e4;
   // Infeasibility: the dual iterate, scaled, is a Farkas certificate when its residual times
   // certificate_reach * |z| stays below its margin (so no plan within that reach of the iterate
   // exists); tested once the primal residual stalls (no halving over stall_window iterations).
