@@ -26,7 +26,8 @@ Clocks (each solver's own, setup excluded; microseconds):
   clarabel           solution.solve_time (the DefaultSolver constructor does the setup)
   hpipm              wall time of the one d_ocp_qp_ipm_solve call minus the measured ctypes call
                      overhead (bench/hpipm.py: casadi's bundled HPIPM/BLASFEO, its own OCP form
-                     with box bounds, native soft constraints; set-up not timed); mode SPEED
+                     with box bounds, native soft constraints; set-up not timed); modes SPEED
+                     (hpipm) and ROBUST (hpipm-robust)
 Tolerances: flight_sw tol 1e-8 (relative residuals and duality gap); ProxSuite eps_abs 1e-8,
 eps_rel 0; PIQP eps_abs 1e-8 eps_rel 1e-9 (defaults); Clarabel tol_gap_abs/rel 1e-8, tol_feas 1e-8
 (defaults); DAQP primal/dual tolerances 1e-6 with automatic proximal regularisation (active set:
@@ -145,11 +146,11 @@ def run_clarabel(qp: OcpQpData, forms: dict):
         math.nan
 
 
-def run_hpipm(qp: OcpQpData, forms: dict):
+def run_hpipm(qp: OcpQpData, forms: dict, mode: str = "speed"):
     from bench.hpipm import HpipmSolver
-    solver = forms.get("hpipm")
+    solver = forms.get(("hpipm", mode))
     if solver is None:
-        solver = forms["hpipm"] = HpipmSolver(qp, mode="speed", tol=1e-6)
+        solver = forms[("hpipm", mode)] = HpipmSolver(qp, mode=mode, tol=1e-6)
     st, _it, t_us, x, u = solver.solve()
     ok = st == 0
     return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else f"status {st}"), t_us, math.nan
@@ -158,6 +159,7 @@ def run_hpipm(qp: OcpQpData, forms: dict):
 SOLVERS = {
     "flight_sw": run_flight_sw,
     "hpipm": run_hpipm,
+    "hpipm-robust": lambda qp, f: run_hpipm(qp, f, mode="robust"),
     "proxsuite-sparse": lambda qp, f: run_proxsuite(qp, f, dense=False),
     "proxsuite-dense": lambda qp, f: run_proxsuite(qp, f, dense=True),
     "osqp": run_osqp,
