@@ -32,7 +32,9 @@ bool factorize_regularised(Workspace& w, const OcpQp& qp, const detail::Kernels&
 }
 
 // Row and soft-slack steps from the primal step (dx, du): dsig, dt, dlam, dmu by the elimination.
-void recover_row_steps(Workspace& w, Step& s) {
+// Returns the largest step keeping t, lam, s, mu nonnegative (unbounded when nothing blocks).
+double recover_row_steps(Workspace& w, Step& s) {
+  double amax = kInf;
   for (int i = 0; i <= w.N; ++i) detail::g_mul(w, i, s.du + w.uo[i], s.dx + i * w.nx, s.dt);  // G dz (dx_0 = 0)
   for (int k = 0; k < w.rows; ++k) {
     if (w.act[k] == 0.0) {
@@ -50,33 +52,21 @@ void recover_row_steps(Workspace& w, Step& s) {
     s.dsig[k] = dsig;
     s.dt[k] = -w.rin[k] - gdz + dsig;
     s.dlam[k] = (-w.rc[k] - w.lam[k] * s.dt[k]) * w.inv_t[k];
-  }
-}
-
-// Largest step keeping t, lam, s, mu nonnegative (unbounded when nothing blocks).
-double max_step(const Workspace& w, const Step& s) {
-  double amax = kInf;
-  for (int k = 0; k < w.rows; ++k) {
     if (s.dt[k] < 0.0) amax = std::min(amax, -w.t[k] / s.dt[k]);
     if (s.dlam[k] < 0.0) amax = std::min(amax, -w.lam[k] / s.dlam[k]);
-    if (w.soft[k] > 0.0) {
-      if (s.dsig[k] < 0.0) amax = std::min(amax, -w.sig[k] / s.dsig[k]);
-      if (s.dmu[k] < 0.0) amax = std::min(amax, -w.mu[k] / s.dmu[k]);
-    }
+    if (dsig < 0.0) amax = std::min(amax, -w.sig[k] / dsig);
+    if (s.dmu[k] < 0.0) amax = std::min(amax, -w.mu[k] / s.dmu[k]);
   }
   return amax;
 }
 
+// NaN/Inf anywhere in the step shows in the sum of its entries.
 bool step_finite(const Workspace& w, const Step& s) {
-  const int X = (w.N + 1) * w.nx;
-  for (int k = 0; k < X; ++k)
-    if (!std::isfinite(s.dx[k])) return false;
-  for (int k = 0; k < w.inputs; ++k)
-    if (!std::isfinite(s.du[k])) return false;
-  for (int k = 0; k < w.rows; ++k)
-    if (!std::isfinite(s.dt[k]) || !std::isfinite(s.dlam[k]) || !std::isfinite(s.dsig[k]) || !std::isfinite(s.dmu[k]))
-      return false;
-  return true;
+  double sum = 0.0;
+  for (int k = 0; k < (w.N + 1) * w.nx; ++k) sum += s.dx[k];
+  for (int k = 0; k < w.inputs; ++k) sum += s.du[k];
+  for (int k = 0; k < w.rows; ++k) sum += s.dt[k] + s.dlam[k] + s.dsig[k] + s.dmu[k];
+  return std::isfinite(sum);  // (an overflowing step counts as broken too)
 }
 
 }  // namespace
@@ -152,16 +142,28 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
   for (;; ++k) {
     K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
     double pres = detail::max_abs(w.rdyn, N * nx), dres = 0.0, gap = 0.0;
+    // One pass over the rows: residuals, gap, and (for the step below) the Newton weights and the
+    // predictor's complementarity targets rc = t lam, rcs = s mu.
     for (int r = 0; r < M; ++r) {
       w.rin[r] = (w.gz[r] - w.sig[r] + w.t[r] - w.dv[r]) * w.act[r];
       pres = std::max(pres, std::abs(w.rin[r]));
-      gap += w.act[r] * w.t[r] * w.lam[r];
+      w.rc[r] = w.act[r] * w.t[r] * w.lam[r];
+      gap += w.rc[r];
+      w.inv_t[r] = 1.0 / w.t[r];
+      const double wr = w.act[r] * w.lam[r] * w.inv_t[r];
+      w.w[r] = wr;
       if (w.soft[r] > 0.0) {
         w.rsig[r] = w.Zs[r] * w.sig[r] + w.zs[r] - w.lam[r] - w.mu[r];
         dres = std::max(dres, std::abs(w.rsig[r]));
-        gap += w.sig[r] * w.mu[r];
+        w.rcs[r] = w.sig[r] * w.mu[r];
+        gap += w.rcs[r];
+        w.inv_s[r] = 1.0 / w.sig[r];
+        const double nu = w.mu[r] * w.inv_s[r];
+        w.inv_h[r] = 1.0 / (w.Zs[r] + wr + nu);
+        w.weff[r] = wr * (w.Zs[r] + nu) * w.inv_h[r];
       } else {
-        w.rsig[r] = 0.0;
+        w.rsig[r] = w.rcs[r] = 0.0;
+        w.weff[r] = wr;
       }
     }
     dres = std::max({dres, detail::max_abs(w.rdu, w.inputs), detail::max_abs(w.rdx + nx, N * nx)});
@@ -198,19 +200,6 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
       break;
     }
 
-    for (int r = 0; r < M; ++r) {
-      w.inv_t[r] = 1.0 / w.t[r];
-      const double wr = w.act[r] * w.lam[r] * w.inv_t[r];
-      w.w[r] = wr;
-      if (w.soft[r] > 0.0) {
-        w.inv_s[r] = 1.0 / w.sig[r];
-        const double nu = w.mu[r] * w.inv_s[r];
-        w.inv_h[r] = 1.0 / (w.Zs[r] + wr + nu);
-        w.weff[r] = wr * (w.Zs[r] + nu) * w.inv_h[r];
-      } else {
-        w.weff[r] = wr;
-      }
-    }
     if (!factorize_regularised(w, qp, K, S)) {
       st = Status::NumericalError;
       break;
@@ -237,21 +226,17 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
       for (int i = 0; i <= N; ++i) detail::gt_mul_add(w, i, w.vrow, w.gu + w.uo[i], i > 0 ? w.gx + i * nx : nullptr);
       K.back_solve(w, qp, w.rdyn, w.step);
       ++info_.back_solves;
-      recover_row_steps(w, w.step);
+      double amax = recover_row_steps(w, w.step);
       for (int ref = 0; refine && ref < S.max_refinements && K.step_error(w, qp, w.step) > S.refine_below * tol; ++ref) {
         K.back_solve(w, qp, w.edyn, w.corr);
         ++info_.back_solves;
         for (int c = 0; c < (N + 1) * nx; ++c) w.step.dx[c] += w.corr.dx[c];
         for (int c = 0; c < w.inputs; ++c) w.step.du[c] += w.corr.du[c];
         for (int c = 0; c < N * nx; ++c) w.step.dpi[c] += w.corr.dpi[c];
-        recover_row_steps(w, w.step);
+        amax = recover_row_steps(w, w.step);
       }
-      return max_step(w, w.step);
+      return amax;
     };
-    for (int r = 0; r < M; ++r) {
-      w.rc[r] = w.act[r] * w.t[r] * w.lam[r];
-      w.rcs[r] = w.soft[r] * w.sig[r] * w.mu[r];
-    }
     const double amax_aff = std::min(1.0, direction(false));
     double gap_aff = 0.0;
     for (int r = 0; r < M; ++r) {
