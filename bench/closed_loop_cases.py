@@ -141,17 +141,17 @@ def ablations_table() -> None:
 
 
 def save_qps(path: str, max_qps: int) -> None:
-    from bench.qp_forms import OcpQpData, save_qp_set
+    from bench.qp_forms import from_dict, save_qp_set
 
     p = fsw.GuidanceParams()
     qps = []
     for k in (1, 2, 3):
         r, _ = run_case(p, k, record_qps=True)
         for rec in r.qps:
-            qp = rec["qp"]
             phase = fsw.Phase(rec["phase"]).name.lower()
-            qps.append(OcpQpData(*(list(map(np.asarray, qp[n])) for n in ("A", "B", "b", "Q", "q", "R", "r", "C", "D", "d")),
-                                 x0=np.asarray(qp["x0"]), phase=f"case{k}/{phase}", Ts=p.phase(rec["phase"]).Ts_s))
+            qp = from_dict(rec["qp"], f"case{k}/{phase}")
+            qp.Ts = p.phase(rec["phase"]).Ts_s
+            qps.append(qp)
     if max_qps and len(qps) > max_qps:  # spread the subset evenly over the three runs
         qps = [qps[i] for i in np.linspace(0, len(qps) - 1, max_qps).round().astype(int)]
     save_qp_set(path, qps)

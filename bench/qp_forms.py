@@ -6,9 +6,11 @@ The stage-wise QP (as in ``flight_sw/solver/ocp_qp.hpp``)::
     minimize   sum_{i=0..N} 1/2 x_i'Q_i x_i + q_i'x_i + 1/2 u_i'R_i u_i + r_i'u_i
     subject to x_0 = x0,  x_{i+1} = A_i x_i + B_i u_i + b_i  (i < N),  C_i x_i + D_i u_i <= d_i  (i <= N)
 
+with soft rows: row j = idxs[i][k] of stage i may be violated by s >= 0 at the cost
+zs[i][k] s + Zs[i][k] s^2 / 2 (the objective below is taken at the least violation s*).
 States are LVLH position [m] and velocity [m/s] (x radial out, y along-track / V-bar, z orbit
-normal); inputs are impulsive delta-v [m/s] per axis, plus slack inputs of soft constraints (linear
-cost, zero Hessian, rows -v <= 0).
+normal); inputs are impulsive delta-v [m/s] per axis. Peers without soft constraints get the
+expanded form (:func:`expand_soft`: one slack input and one row s >= 0 per soft row).
 
 QP-set file (``.npz``, written by :func:`save_qp_set`, read by :func:`load_qp_set`): flat keys,
 one group per QP ``k`` (``k`` = 0 .. n_qps-1)::
@@ -20,6 +22,7 @@ one group per QP ``k`` (``k`` = 0 .. n_qps-1)::
     qp{k}/{A,B,b}/{i}          i = 0..N-1: (nx,nx), (nx,nu_i), (nx,)
     qp{k}/{Q,q,R,r,C,D,d}/{i}  i = 0..N:   (nx,nx), (nx,), (nu_i,nu_i), (nu_i,), (nc_i,nx), (nc_i,nu_i), (nc_i,)
     qp{k}/Ts                   optional, sampling period [s]
+    qp{k}/{idxs,zs,Zs}/{i}     optional (soft rows), i = 0..N: (ns_i,) int, (ns_i,), (ns_i,)
 
 Empty blocks are stored with their zero dimension (e.g. R_N of shape (0, 0)). No pickled objects.
 """
@@ -79,6 +82,9 @@ class OcpQpData:
     x0: np.ndarray
     phase: str = ""
     Ts: float = float("nan")
+    idxs: list | None = None  # soft rows per stage (None: none)
+    zs: list | None = None
+    Zs: list | None = None
 
     @property
     def N(self) -> int:
@@ -96,26 +102,84 @@ class OcpQpData:
     def nc(self) -> list[int]:
         return [C.shape[0] for C in self.C]
 
+    @property
+    def ns(self) -> list[int]:
+        return [len(k) for k in self.idxs] if self.idxs is not None else [0] * (self.N + 1)
+
     def args(self) -> tuple:
         return (self.A, self.B, self.b, self.Q, self.q, self.R, self.r, self.C, self.D, self.d, self.x0)
 
+    def kw(self) -> dict:
+        """The soft rows as flight_sw.solve_ocp_qp's keyword arguments (empty when there are none)."""
+        return {} if self.idxs is None else {"idxs": self.idxs, "zs": self.zs, "Zs": self.Zs}
+
+    def hard_rows(self, i: int) -> np.ndarray:
+        mask = np.ones(self.C[i].shape[0], bool)
+        if self.idxs is not None:
+            mask[np.asarray(self.idxs[i], int)] = False
+        return mask
+
     def objective(self, x: np.ndarray, u: list) -> float:
-        """Objective at states x ((N+1) x nx, x[0] = x0) and inputs u (N+1 arrays)."""
+        """Objective at states x ((N+1) x nx, x[0] = x0) and inputs u (N+1 arrays); soft rows at their
+        least violation s* = max(row - d, 0) (inputs beyond nu_i, e.g. a peer's slacks, are ignored)."""
         f = 0.0
         for i in range(self.N + 1):
+            ui = np.asarray(u[i])[:self.R[i].shape[0]]
             f += 0.5 * x[i] @ self.Q[i] @ x[i] + self.q[i] @ x[i]
-            f += 0.5 * u[i] @ self.R[i] @ u[i] + self.r[i] @ u[i]
+            f += 0.5 * ui @ self.R[i] @ ui + self.r[i] @ ui
+            if self.idxs is not None and len(self.idxs[i]):
+                rows = np.asarray(self.idxs[i], int)
+                s = np.maximum(self.C[i][rows] @ x[i] + self.D[i][rows] @ ui - self.d[i][rows], 0.0)
+                f += float(self.zs[i] @ s + 0.5 * (self.Zs[i] * s) @ s)
         return float(f)
 
     def violation(self, x: np.ndarray, u: list) -> float:
-        """Largest dynamics residual or inequality violation (inf-norm)."""
+        """Largest dynamics residual or hard-row violation (inf-norm)."""
         v = float(np.max(np.abs(x[0] - self.x0)))
         for i in range(self.N):
-            v = max(v, float(np.max(np.abs(self.A[i] @ x[i] + self.B[i] @ u[i] + self.b[i] - x[i + 1]))))
+            ui = np.asarray(u[i])[:self.R[i].shape[0]]
+            v = max(v, float(np.max(np.abs(self.A[i] @ x[i] + self.B[i] @ ui + self.b[i] - x[i + 1]))))
         for i in range(self.N + 1):
-            if self.C[i].shape[0]:
-                v = max(v, float(np.max(self.C[i] @ x[i] + self.D[i] @ u[i] - self.d[i])))
+            hard = self.hard_rows(i)
+            if hard.any():
+                ui = np.asarray(u[i])[:self.R[i].shape[0]]
+                v = max(v, float(np.max((self.C[i] @ x[i] + self.D[i] @ ui - self.d[i])[hard])))
         return v
+
+
+def from_dict(d: dict, phase: str = "") -> OcpQpData:
+    """A QP from the dict flight_sw's guidance bindings return (PhaseQp.build, build_phase_qp, recorded QPs)."""
+    soft = {}
+    if "idxs" in d:
+        soft = {"idxs": [list(map(int, v)) for v in d["idxs"]], "zs": [np.asarray(v, float) for v in d["zs"]],
+                "Zs": [np.asarray(v, float) for v in d["Zs"]]}
+    return OcpQpData(d["A"], d["B"], d["b"], d["Q"], d["q"], d["R"], d["r"], d["C"], d["D"], d["d"],
+                     np.asarray(d["x0"], float), phase=phase, **soft)
+
+
+def expand_soft(qp: OcpQpData) -> OcpQpData:
+    """The same QP with every soft row's slack as an input of its stage (zero in the dynamics, Hessian
+    Zs, linear cost zs) and one more row -s <= 0 per slack: the form for solvers without soft rows.
+    Its optimum equals the soft QP's; its first nu_i inputs are the soft QP's inputs."""
+    if qp.idxs is None or not any(len(k) for k in qp.idxs):
+        return qp
+    B, R, r, C, D, d = [], [], [], [], [], []
+    for i in range(qp.N + 1):
+        nu, ns, nx = qp.R[i].shape[0], len(qp.idxs[i]), qp.nx
+        rows = np.asarray(qp.idxs[i], int)
+        if i < qp.N:
+            B.append(np.hstack([qp.B[i], np.zeros((nx, ns))]))
+        Ri = np.zeros((nu + ns, nu + ns))
+        Ri[:nu, :nu] = qp.R[i]
+        Ri[nu:, nu:] = np.diag(qp.Zs[i])
+        R.append(Ri)
+        r.append(np.concatenate([qp.r[i], qp.zs[i]]))
+        E = np.zeros((qp.C[i].shape[0], ns))
+        E[rows, np.arange(ns)] = -1.0
+        C.append(np.vstack([qp.C[i], np.zeros((ns, nx))]))
+        D.append(np.vstack([np.hstack([qp.D[i], E]), np.hstack([np.zeros((ns, nu)), -np.eye(ns)])]))
+        d.append(np.concatenate([qp.d[i], np.zeros(ns)]))
+    return OcpQpData(qp.A, B, qp.b, qp.Q, qp.q, R, r, C, D, d, qp.x0, qp.phase, qp.Ts)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -142,7 +206,7 @@ def _box_rows(nu: int, n_thrust: int, umax: float) -> tuple[np.ndarray, np.ndarr
 def rendezvous_qp(N: int, rng: np.random.Generator, *, ts_s: float = 30.0, umax: float = 0.1786,
                   r1_m: float = 200.0, penalty: float = 10.0) -> OcpQpData:
     """Phase 1: |u|inf box, a keep-out hyperplane per stage (rotating towards the V-bar cone axis),
-    soft terminal cone with 4 slack inputs on stage N, set-point tracking."""
+    soft terminal cone (4 soft rows on stage N, penalty per metre outside a face), set-point tracking."""
     A, B = cw_impulsive(ts_s)
     nx = 6
     rng_m = rng.uniform(800.0, 2500.0)
@@ -158,6 +222,7 @@ def rendezvous_qp(N: int, rng: np.random.Generator, *, ts_s: float = 30.0, umax:
     # no faster than the orbit rate (dissertation eqs. 3.5-3.7).
     step = np.sign(start) * min(abs(start) / N, mean_motion_rad_s() * ts_s)
     As, Bs, bs, Qs, qs, Rs, rs, Cs, Ds, ds = ([] for _ in range(10))
+    idxs, zs, Zs = [], [], []
     for i in range(N + 1):
         theta = start - step * i
         nrm = np.array([np.sin(theta), -np.cos(theta), 0.0])
@@ -179,27 +244,30 @@ def rendezvous_qp(N: int, rng: np.random.Generator, *, ts_s: float = 30.0, umax:
                 Cs.append(np.vstack([np.zeros((6, nx)), keep_out_C]))
                 Ds.append(np.vstack([Dbox, np.zeros((1, 3))]))
                 ds.append(np.concatenate([dbox, [-r1_m]]))
+            idxs.append([])
+            zs.append(np.zeros(0))
+            Zs.append(np.zeros(0))
         else:
             Qs.append(10 * Qd)
             qs.append(-10 * Qd @ x_ref)
-            Rs.append(np.zeros((4, 4)))
-            rs.append(np.full(4, penalty))
-            C = np.zeros((9, nx))
-            C[:4, :3] = Hc
-            C[8] = keep_out_C
-            D = np.zeros((9, 4))
-            D[:4] = -np.eye(4)
-            D[4:8] = -np.eye(4)
+            Rs.append(np.zeros((0, 0)))
+            rs.append(np.zeros(0))
+            C = np.zeros((5, nx))
+            C[:4, :3] = Hc  # H p <= 0, soft
+            C[4] = keep_out_C
             Cs.append(C)
-            Ds.append(D)
-            ds.append(np.concatenate([np.zeros(8), [-r1_m]]))
-    return OcpQpData(As, Bs, bs, Qs, qs, Rs, rs, Cs, Ds, ds, x0, "rendezvous", ts_s)
+            Ds.append(np.zeros((5, 0)))
+            ds.append(np.concatenate([np.zeros(4), [-r1_m]]))
+            idxs.append([0, 1, 2, 3])
+            zs.append(np.full(4, penalty))
+            Zs.append(np.zeros(4))
+    return OcpQpData(As, Bs, bs, Qs, qs, Rs, rs, Cs, Ds, ds, x0, "rendezvous", ts_s, idxs, zs, Zs)
 
 
 def approach_qp(N: int, rng: np.random.Generator, *, ts_s: float = 20.0, umax: float = 0.1786,
                 r2_m: float = 30.0, penalty: float = 10.0) -> OcpQpData:
-    """Phase 2: 3 thrust + 4 cone-slack inputs per stage (4 on stage N), soft cone on every state,
-    hard overshoot plane, |u|inf box."""
+    """Phase 2: 3 thrust inputs per stage (none on stage N), soft cone (4 soft rows) on every state
+    (on stage 0 constant rows of x0, a constant penalty), hard overshoot plane, |u|inf box."""
     A, B3 = cw_impulsive(ts_s)
     nx = 6
     axis = np.array([0.0, -1.0, 0.0])
@@ -210,39 +278,35 @@ def approach_qp(N: int, rng: np.random.Generator, *, ts_s: float = 20.0, umax: f
     x_ref = np.concatenate([(r2_m + 5.0) * axis, np.zeros(3)])
     Qd = np.eye(nx) * 1e-2
     As, Bs, bs, Qs, qs, Rs, rs, Cs, Ds, ds = ([] for _ in range(10))
+    idxs, zs, Zs = [], [], []
     for i in range(N + 1):
-        nu = 7 if i < N else 4
-        nth = 3 if i < N else 0
-        C = np.zeros((2 * nth + 9, nx))
-        D = np.zeros((2 * nth + 9, nu))
-        d = np.zeros(2 * nth + 9)
-        if nth:
-            D[:2 * nth], d[:2 * nth] = _box_rows(nu, nth, umax)
-        o = 2 * nth
-        C[o:o + 4, :3] = Hc  # H p - v <= 0
-        D[o:o + 4, nth:nth + 4] = -np.eye(4)
-        D[o + 4:o + 8, nth:nth + 4] = -np.eye(4)  # v >= 0
-        C[o + 8, :3] = axis  # overshoot plane: axis'p >= r2  ->  -axis'p <= -r2
-        C[o + 8] *= -1.0
-        d[o + 8] = -r2_m
-        R = np.zeros((nu, nu))
-        R[:nth, :nth] = 1e3 * np.eye(nth) * 1e-2
-        r = np.zeros(nu)
-        r[nth:] = penalty * 1e-2
+        nu = 3 if i < N else 0
+        C = np.zeros((2 * nu + 5, nx))
+        D = np.zeros((2 * nu + 5, nu))
+        d = np.zeros(2 * nu + 5)
+        if nu:
+            D[:2 * nu], d[:2 * nu] = _box_rows(nu, nu, umax)
+        o = 2 * nu
+        C[o:o + 4, :3] = Hc  # H p <= 0, soft
+        C[o + 4, :3] = -axis  # overshoot plane: axis'p >= r2  ->  -axis'p <= -r2
+        d[o + 4] = -r2_m
         if i < N:
             As.append(A)
-            Bs.append(np.hstack([B3, np.zeros((nx, 4))]))
+            Bs.append(B3)
             bs.append(np.zeros(nx))
         Qs.append(Qd)
         qs.append(-Qd @ x_ref)
-        Rs.append(R)
-        rs.append(r)
+        Rs.append(1e3 * np.eye(nu) * 1e-2)
+        rs.append(np.zeros(nu))
         if i == 0:  # the overshoot row on x0 alone is a constant: drop it
             C, D, d = C[:-1], D[:-1], d[:-1]
         Cs.append(C)
         Ds.append(D)
         ds.append(d)
-    return OcpQpData(As, Bs, bs, Qs, qs, Rs, rs, Cs, Ds, ds, x0, "approach", ts_s)
+        idxs.append(list(range(o, o + 4)))
+        zs.append(np.full(4, penalty * 1e-2))
+        Zs.append(np.zeros(4))
+    return OcpQpData(As, Bs, bs, Qs, qs, Rs, rs, Cs, Ds, ds, x0, "approach", ts_s, idxs, zs, Zs)
 
 
 def docking_qp(N: int, rng: np.random.Generator, *, ts_s: float = 5.0, umax: float = 0.0357,
@@ -415,6 +479,7 @@ class StackedQp:
 
 
 def to_stacked(qp: OcpQpData) -> StackedQp:
+    qp = expand_soft(qp)
     N, nx = qp.N, qp.nx
     u_idx, x_idx = [], [None]
     off = 0
@@ -482,7 +547,7 @@ class CondensedQp:
     u_idx: list
 
     def unstack(self, U: np.ndarray, qp: "OcpQpData") -> tuple[np.ndarray, list]:
-        u = [U[s].copy() for s in self.u_idx]
+        u = [U[s][:qp.R[i].shape[0]].copy() for i, s in enumerate(self.u_idx)]
         x = [qp.x0]
         for i in range(qp.N):
             x.append(qp.A[i] @ x[-1] + qp.B[i] @ u[i] + qp.b[i])
@@ -490,6 +555,7 @@ class CondensedQp:
 
 
 def condense(qp: OcpQpData) -> CondensedQp:
+    qp = expand_soft(qp)
     N, nx = qp.N, qp.nx
     u_idx, off = [], 0
     for i in range(N + 1):
@@ -589,6 +655,11 @@ def save_qp_set(path: str | Path, qps: list[OcpQpData]) -> None:
         for name in DYN_NAMES + STAGE_NAMES:
             for i, blk in enumerate(getattr(qp, name)):
                 arrays[f"{pre}{name}/{i}"] = np.asarray(blk, float)
+        if qp.idxs is not None:
+            for i in range(qp.N + 1):
+                arrays[f"{pre}idxs/{i}"] = np.asarray(qp.idxs[i], np.int64)
+                arrays[f"{pre}zs/{i}"] = np.asarray(qp.zs[i], float)
+                arrays[f"{pre}Zs/{i}"] = np.asarray(qp.Zs[i], float)
     np.savez_compressed(path, **arrays)
 
 
@@ -620,5 +691,11 @@ def load_qp_set(path: str | Path) -> list[OcpQpData]:
                 blocks[name] = lst
             phase = str(f[pre + "phase"]) if pre + "phase" in keys else ""
             ts = float(f[pre + "Ts"]) if pre + "Ts" in keys else float("nan")
-            qps.append(OcpQpData(**blocks, x0=np.asarray(f[pre + "x0"], float).reshape(-1), phase=phase, Ts=ts))
+            soft = {}
+            if pre + "idxs/0" in keys:
+                soft = {"idxs": [np.asarray(f[f"{pre}idxs/{i}"], np.int64).reshape(-1).tolist() for i in range(N + 1)],
+                        "zs": [np.asarray(f[f"{pre}zs/{i}"], float).reshape(-1) for i in range(N + 1)],
+                        "Zs": [np.asarray(f[f"{pre}Zs/{i}"], float).reshape(-1) for i in range(N + 1)]}
+            qps.append(OcpQpData(**blocks, x0=np.asarray(f[pre + "x0"], float).reshape(-1), phase=phase, Ts=ts,
+                                 **soft))
     return qps

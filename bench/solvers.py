@@ -5,6 +5,10 @@ the same MPC QPs, measured in one run. Prints figures; asserts nothing about spe
     python -m bench.solvers --qp-set run.npz     # a recorded QP set (format: bench/qp_forms.py)
     python -m bench.solvers --quick              # fewer QPs and repeats (a smoke run)
     python -m bench.solvers --record-cases real.npz  # record the closed-loop QPs of Cases 1-3, bench them
+    python -m bench.solvers --closed-loop-set cl.npz --per-group 40   # the project's closed-loop set:
+        # Cases 1-3 and seeded random starts (rotating targets among them) at the three horizon sets,
+        # sampled per phase and horizon, written to cl.npz, then benched
+    python -m bench.solvers --warm-cold                # closed loops solved warm and cold side by side
 
 Accuracy is matched, not assumed: every solver's objective is compared with a reference (ProxSuite,
 eps_abs 1e-10, or looser where it cannot get there; Clarabel at 1e-10 where ProxSuite fails) and
@@ -20,11 +24,16 @@ Clocks (each solver's own, setup excluded; microseconds):
                      eliminated; condensing is not timed)
   piqp               result.info.solve_time (setup_time excluded), sparse interface
   clarabel           solution.solve_time (the DefaultSolver constructor does the setup)
+  hpipm              wall time of the one d_ocp_qp_ipm_solve call minus the measured ctypes call
+                     overhead (bench/hpipm.py: casadi's bundled HPIPM/BLASFEO, its own OCP form
+                     with box bounds, native soft constraints; set-up not timed); modes SPEED
+                     (hpipm) and ROBUST (hpipm-robust)
 Tolerances: flight_sw tol 1e-8 (relative residuals and duality gap); ProxSuite eps_abs 1e-8,
 eps_rel 0; PIQP eps_abs 1e-8 eps_rel 1e-9 (defaults); Clarabel tol_gap_abs/rel 1e-8, tol_feas 1e-8
 (defaults); DAQP primal/dual tolerances 1e-6 with automatic proximal regularisation (active set:
 exact up to rounding once the active set is right); OSQP eps_abs = eps_rel = 1e-6 with polishing
-(ADMM does not reach 1e-8 in practical iteration counts; the polished solution usually is exact).
+(ADMM does not reach 1e-8 in practical iteration counts; the polished solution usually is exact);
+HPIPM tol_stat = tol_eq = tol_ineq = tol_comp = 1e-6 (absolute; 1e-8 only costs it iterations).
 """
 from __future__ import annotations
 
@@ -37,7 +46,7 @@ from collections import defaultdict
 import numpy as np
 import scipy.sparse as sp
 
-from bench.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, condense, load_qp_set,
+from bench.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, condense, from_dict, load_qp_set,
                             save_qp_set, solve_proxsuite, to_stacked)
 
 AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |f*|)
@@ -49,9 +58,9 @@ AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |
 
 def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
     import flight_sw
-    solver = forms.setdefault(("flight_sw", mode), flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, mode=mode, tol=1e-8,
+    solver = forms.setdefault(("flight_sw", mode), flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode=mode, tol=1e-8,
                                                                       warm_start=False))
-    r = solver.solve(*qp.args())
+    r = solver.solve(*qp.args(), **qp.kw())
     return r.objective, r.status, r.solve_time_us, math.nan
 
 
@@ -137,8 +146,20 @@ def run_clarabel(qp: OcpQpData, forms: dict):
         math.nan
 
 
+def run_hpipm(qp: OcpQpData, forms: dict, mode: str = "speed"):
+    from bench.hpipm import HpipmSolver
+    solver = forms.get(("hpipm", mode))
+    if solver is None:
+        solver = forms[("hpipm", mode)] = HpipmSolver(qp, mode=mode, tol=1e-6)
+    st, _it, t_us, x, u = solver.solve()
+    ok = st == 0
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else f"status {st}"), t_us, math.nan
+
+
 SOLVERS = {
     "flight_sw": run_flight_sw,
+    "hpipm": run_hpipm,
+    "hpipm-robust": lambda qp, f: run_hpipm(qp, f, mode="robust"),
     "proxsuite-sparse": lambda qp, f: run_proxsuite(qp, f, dense=False),
     "proxsuite-dense": lambda qp, f: run_proxsuite(qp, f, dense=True),
     "osqp": run_osqp,
@@ -208,12 +229,91 @@ def record_cases(path: str, cases=(1, 2, 3)) -> list[OcpQpData]:
         c = flight_sw.dissertation_case(case)
         run = flight_sw.run_closed_loop(params, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"], record_qps=True)
         for rec in run.qps:
-            d = rec["qp"]
             phase = str(rec["phase"]).split(".")[-1].lower()
-            qps.append(OcpQpData(d["A"], d["B"], d["b"], d["Q"], d["q"], d["R"], d["r"], d["C"], d["D"], d["d"],
-                                 np.asarray(d["x0"], float), phase=phase))
+            qps.append(from_dict(rec["qp"], phase))
     save_qp_set(path, qps)
     return qps
+
+
+def closed_loop_set(path: str, per_group: int, seed: int = 0, random_starts: int = 12) -> list[OcpQpData]:
+    """The project's closed-loop QP set: every QP the guidance solves in closed loops (CW plant, in
+    process) of Cases 1-3 and `random_starts` seeded random starts (host_sim.scenario.random_scenario;
+    every third one with a target spinning at 0.1-0.3 deg/s about a random body axis), at the three
+    horizon sets (rendezvous 15/30/45, approach 5/15/30, docking 5/12/30); per_group QPs drawn per
+    phase and horizon. Written to `path` (bench/qp_forms.py format)."""
+    import flight_sw
+    from host_sim.scenario import random_scenario
+    rng = np.random.default_rng(seed)
+    starts = []
+    for case in (1, 2, 3):
+        c = flight_sw.dissertation_case(case)
+        starts.append((f"case{case}", c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"]))
+    for k in range(random_starts):
+        sc = random_scenario(1000 + k)
+        x0 = np.concatenate([sc.chaser.position_lvlh_m, sc.chaser.velocity_lvlh_mps])
+        q = rng.standard_normal(4)
+        q /= np.linalg.norm(q)
+        w = np.zeros(3)
+        if k % 3 == 0:
+            axis = rng.standard_normal(3)
+            w = np.deg2rad(rng.uniform(0.1, 0.3)) * axis / np.linalg.norm(axis)
+        starts.append((f"random{k}", x0, q, w))
+    groups: dict = defaultdict(list)
+    names = {1: "rendezvous", 2: "approach", 3: "docking"}
+    for horizons in ((15, 5, 5), (30, 15, 12), (45, 30, 30)):
+        params = flight_sw.GuidanceParams()
+        params.rendezvous.N, params.approach.N, params.docking.N = horizons
+        for label, x0, q, w in starts:
+            run = flight_sw.run_closed_loop(params, x0, q, w, record_qps=True)
+            for rec in run.qps:
+                phase = int(rec["phase"])
+                groups[(names[phase], horizons[phase - 1])].append(from_dict(rec["qp"], names[phase]))
+    qps = []
+    for key in sorted(groups):
+        pool = groups[key]
+        pick = rng.choice(len(pool), size=min(per_group, len(pool)), replace=False)
+        qps += [pool[i] for i in sorted(pick)]
+    save_qp_set(path, qps)
+    return qps
+
+
+def warm_cold(seed: int = 0, random_starts: int = 6) -> None:
+    """Closed loops (CW plant, in process) run twice per start, warm-started and cold: iterations and
+    solve times per phase side by side (the same loop, interleaved by start)."""
+    import flight_sw
+    from host_sim.scenario import random_scenario
+    rows = defaultdict(lambda: defaultdict(list))
+    for horizons in ((15, 5, 5), (30, 15, 12), (45, 30, 30)):
+        starts = [flight_sw.dissertation_case(c) for c in (1, 2, 3)]
+        for k in range(random_starts):
+            sc = random_scenario(2000 + k)
+            starts.append({"x0": np.concatenate([sc.chaser.position_lvlh_m, sc.chaser.velocity_lvlh_mps]),
+                           "q_lvlh_body": np.array([0.7071067811865476, 0.0, 0.0, -0.7071067811865476]),
+                           "omega_body_rad_s": np.zeros(3)})
+        for c in starts:
+            for warm in (True, False):
+                params = flight_sw.GuidanceParams()
+                params.rendezvous.N, params.approach.N, params.docking.N = horizons
+                for ph in (params.rendezvous, params.approach, params.docking):
+                    ph.solver_warm_start = warm
+                run = flight_sw.run_closed_loop(params, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"])
+                for ph, it, t in zip(run.phase, run.iterations, run.solve_time_us):
+                    if int(ph) not in (1, 2, 3) or it == 0:  # docked, or no solve
+                        continue
+                    name = ("rendezvous", "approach", "docking")[int(ph) - 1]
+                    N = horizons[("rendezvous", "approach", "docking").index(name)]
+                    rows[(name, N)]["warm" if warm else "cold"].append((it, t))
+    print("closed loops warm vs cold (Cases 1-3 and random starts, CW plant), per phase and horizon")
+    print(f"{'phase':<11}{'N':>4}  {'solves':>6}  {'it warm':>8}{'it cold':>8}  {'t warm':>8}{'t cold':>8}  "
+          f"{'max it w/c':>11}  {'p90 t w/c':>15}  {'cold/warm t':>11}")
+    for key in sorted(rows, key=lambda k: (("rendezvous", "approach", "docking").index(k[0]), k[1])):
+        w, c = np.array(rows[key]["warm"]), np.array(rows[key]["cold"])
+        print(f"{key[0]:<11}{key[1]:>4}  {len(w):>6}  {np.mean(w[:, 0]):>8.1f}{np.mean(c[:, 0]):>8.1f}  "
+              f"{np.median(w[:, 1]):>8.1f}{np.median(c[:, 1]):>8.1f}  {int(w[:, 0].max()):>5}/{int(c[:, 0].max()):<5}  "
+              f"{np.percentile(w[:, 1], 90):>7.1f}/{np.percentile(c[:, 1], 90):<7.1f}  "
+              f"{np.median(c[:, 1]) / np.median(w[:, 1]):>11.2f}")
+    print("it = mean iterations per solve; t = median solve time [us] (host wall time, C++ clock); the warm "
+          "loop and the cold loop may fly slightly different trajectories (same QPs only at the first step)\n")
 
 
 def pct(values, q):
@@ -229,8 +329,16 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="2 QPs per group, 2 repeats")
     ap.add_argument("--record-cases", metavar="FILE",
                     help="record every QP of closed loops of the dissertation's Cases 1-3 into FILE, then bench them")
+    ap.add_argument("--closed-loop-set", metavar="FILE",
+                    help="record the project's closed-loop set (Cases 1-3 + random starts, all horizons; "
+                         "--per-group QPs per phase and horizon) into FILE, then bench it")
+    ap.add_argument("--random-starts", type=int, default=12, help="random starts in --closed-loop-set")
+    ap.add_argument("--warm-cold", action="store_true", help="closed loops warm vs cold, then exit")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
+    if args.warm_cold:
+        warm_cold(args.seed)
+        return 0
     if args.quick:
         args.per_group, args.repeats = 2, 2
     names = [n for n in args.solvers.split(",") if n]
@@ -242,6 +350,9 @@ def main(argv=None) -> int:
     if args.record_cases:
         qps = record_cases(args.record_cases)
         args.qp_set = args.record_cases
+    elif args.closed_loop_set:
+        qps = closed_loop_set(args.closed_loop_set, args.per_group, args.seed, args.random_starts)
+        args.qp_set = args.closed_loop_set
     else:
         qps = load_qp_set(args.qp_set) if args.qp_set else synthetic_set(args.per_group, args.seed)
     print(f"{len(qps)} QPs from {args.qp_set or 'the synthetic MPC set'}; {args.repeats} timed solves per QP "
@@ -276,7 +387,7 @@ def main(argv=None) -> int:
 
     print("reference objectives: " + ", ".join(f"{who} {n}" for who, n in used.items()) + "\n")
     groups = sorted(count, key=lambda k: (list(PHASE_HORIZONS).index(k[0]) if k[0] in PHASE_HORIZONS else 99, k[1]))
-    print(f"{'phase':<11}{'N':>4}  {'solver':<17}{'median':>10}{'p99':>10}{'ratio':>8}  {'worst rel. obj':>15}  "
+    print(f"{'phase':<11}{'N':>4}  {'solver':<17}{'median':>10}{'p90':>10}{'p99':>10}{'ratio':>8}  {'worst rel. obj':>15}  "
           f"{'bad':<6}{'setup (not in median)':>22}")
     for key in groups:
         ours = np.median(times[key + ("flight_sw",)]) if "flight_sw" in names else math.nan
@@ -285,7 +396,7 @@ def main(argv=None) -> int:
             med = np.median(t)
             setup = np.median(setups[key + (name,)])
             setup_txt = "-" if math.isnan(setup) else f"{setup:.1f}"
-            print(f"{key[0]:<11}{key[1]:>4}  {name:<17}{med:>10.1f}{pct(t, 99):>10.1f}{med / ours:>8.2f}  "
+            print(f"{key[0]:<11}{key[1]:>4}  {name:<17}{med:>10.1f}{pct(t, 90):>10.1f}{pct(t, 99):>10.1f}{med / ours:>8.2f}  "
                   f"{worst[key + (name,)]:>15.1e}  {str(wrong[key + (name,)]) + '/' + str(count[key]):<6}{setup_txt:>22}")
         print()
     print("ratio = solver median / flight_sw median (above 1: flight_sw is faster); bad = objective off the "

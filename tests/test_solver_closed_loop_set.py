@@ -1,4 +1,4 @@
-"""Issue 3, acceptance 1: the converged Fast MPC mode against ProxSuite on QPs the guidance really
+"""The converged Fast MPC mode against ProxSuite on QPs the guidance really
 solves: closed loops of Case 1 (V-bar) and Case 3 (rotating target) at the dissertation's benchmark
 horizons (rendezvous 15/30/45, approach 5/15/30, docking 5/12/30), 35 QPs per phase and horizon,
 315 in all, each re-solved cold.
@@ -15,7 +15,7 @@ import pytest
 from scipy.optimize import linprog
 
 import flight_sw
-from bench.qp_forms import OcpQpData, condense, solve_proxsuite, to_stacked
+from bench.qp_forms import OcpQpData, condense, from_dict, solve_proxsuite, to_stacked
 
 HORIZON_SETS = ((15, 5, 5), (30, 15, 12), (45, 30, 30))
 PER_GROUP = 35
@@ -34,9 +34,7 @@ def _qp_set():
             for rec in run.qps:
                 phase = int(rec["phase"])
                 N = horizons[phase - 1]
-                d = rec["qp"]
-                qp = OcpQpData(d["A"], d["B"], d["b"], d["Q"], d["q"], d["R"], d["r"], d["C"], d["D"], d["d"],
-                               np.asarray(d["x0"], float), phase=PHASE_NAMES[phase])
+                qp = from_dict(rec["qp"], PHASE_NAMES[phase])
                 assert qp.N == N
                 groups.setdefault((PHASE_NAMES[phase], N), []).append(qp)
     rng = np.random.default_rng(7)
@@ -108,7 +106,7 @@ def test_converged_mode_agrees_with_proxsuite_on_closed_loop_qps(qp_set):
     for key, qp in chosen:
         name, f_ref = reference(qp)
         used[name] += 1
-        ours = flight_sw.solve_ocp_qp(*qp.args(), tol=1e-8, mode="converged")
+        ours = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), tol=1e-8, mode="converged")
         if f_ref is None:  # infeasible by the LP
             assert ours.status == "infeasible", (key, ours.status)
             continue

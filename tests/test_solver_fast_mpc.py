@@ -36,7 +36,7 @@ def test_converged_matches_proxsuite(phase, N):
     for seed in (N, N + 100):
         qp = make(phase, N, seed)
         ref = reference(qp)
-        res = flight_sw.solve_ocp_qp(*qp.args(), tol=1e-8)
+        res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), tol=1e-8)
         assert res.status == ref.status, f"seed {seed}: ours {res.status}, ProxSuite {ref.status}"
         if ref.status != "solved":
             continue
@@ -62,12 +62,12 @@ def test_infeasibility_verdict(phase, N):
 
     infeasible = with_reach_row(base, stage, direction, +1.0)
     assert solve_proxsuite(infeasible, eps_infeasible=1e-4, max_iter=20000).status == "infeasible"
-    assert flight_sw.solve_ocp_qp(*infeasible.args()).status == "infeasible"
-    assert flight_sw.solve_ocp_qp(*infeasible.args(), mode="fixed_barrier", max_iter=60).status == "infeasible"
+    assert flight_sw.solve_ocp_qp(*infeasible.args(), **infeasible.kw()).status == "infeasible"
+    assert flight_sw.solve_ocp_qp(*infeasible.args(), **infeasible.kw(), mode="fixed_barrier", max_iter=60).status == "infeasible"
 
     feasible = with_reach_row(base, stage, direction, -1.0)
     ref = reference(feasible)
-    res = flight_sw.solve_ocp_qp(*feasible.args())
+    res = flight_sw.solve_ocp_qp(*feasible.args(), **feasible.kw())
     assert ref.status == res.status == "solved"
     assert abs(res.objective - ref.objective) <= 1e-6 * max(1.0, abs(ref.objective))
 
@@ -76,7 +76,7 @@ def test_violated_initial_state_row_is_infeasible_at_once():
     qp = docking_qp(12, np.random.default_rng(0))
     x0 = qp.x0.copy()
     x0[3] = 0.5  # radial speed above the 0.1 m/s bound: a stage-0 row of x0 alone
-    res = flight_sw.solve_ocp_qp(*qp.args()[:-1], x0)
+    res = flight_sw.solve_ocp_qp(*qp.args()[:-1], x0, **qp.kw())
     assert res.status == "infeasible" and res.iterations == 0
 
 
@@ -88,7 +88,7 @@ def test_fixed_barrier_within_barrier_bound(phase, kappa):
     qp = make(phase, 15, 42)
     ref = reference(qp)
     assert ref.status == "solved"
-    res = flight_sw.solve_ocp_qp(*qp.args(), mode="fixed_barrier", barrier=kappa, max_iter=100)
+    res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), mode="fixed_barrier", barrier=kappa, max_iter=100)
     assert res.status == "solved"
     assert min_slack(qp, res.x, res.u) > 0.0
     assert res.primal_residual <= 1e-8  # dynamics; the inequalities hold strictly
@@ -101,13 +101,13 @@ def closed_loop_iterations(qp: OcpQpData, mode: str, steps: int = 8, noise_m: fl
     """Iterations of a warm-started solver and of cold solves over a closed loop: the plant takes
     the plan's first thrust (plus a navigation error), the plan's tail is the next warm start."""
     rng = np.random.default_rng(5)
-    solver = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, mode=mode, barrier=1e-3, max_iter=60)
+    solver = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode=mode, barrier=1e-3, max_iter=60)
     x = qp.x0.copy()
     warm = cold = 0
     for step in range(steps):
         args = qp.args()[:-1] + (x,)
-        r = solver.solve(*args)
-        c = flight_sw.solve_ocp_qp(*args, mode=mode, barrier=1e-3, max_iter=60)
+        r = solver.solve(*args, **qp.kw())
+        c = flight_sw.solve_ocp_qp(*args, **qp.kw(), mode=mode, barrier=1e-3, max_iter=60)
         assert r.status == c.status
         if r.status == "infeasible":  # the noisy plant left the docking cone: the loop ends
             break
@@ -118,7 +118,7 @@ def closed_loop_iterations(qp: OcpQpData, mode: str, steps: int = 8, noise_m: fl
         if step > 0:
             warm += r.iterations
             cold += c.iterations
-        x = qp.A[0] @ x + qp.B[0][:, :3] @ r.u[0][:3]
+        x = qp.A[0] @ x + qp.B[0][:, :3] @ np.asarray(r.u[0])[:3]
         x[:3] += noise_m * rng.standard_normal(3)
         solver.shift_warm_start()
     return warm, cold
@@ -140,29 +140,33 @@ def test_warm_start_needs_fewer_iterations(phase, mode):
 
 def test_result_layout_and_reusable_solver():
     qp = rendezvous_qp(15, np.random.default_rng(2))
-    res = flight_sw.solve_ocp_qp(*qp.args())
+    res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw())
     assert res.status == "solved"
     assert res.x.shape == (16, 6) and np.array_equal(res.x[0], qp.x0)
-    assert len(res.u) == 16 and res.u[15].shape == (4,) and res.u[3].shape == (3,)
+    assert len(res.u) == 16 and res.u[15].shape == (0,) and res.u[3].shape == (3,)
     assert res.pi.shape == (15, 6) and len(res.lam) == 16
+    # The terminal cone penalty is 4 soft rows: their slacks are the violations of H rho_N <= 0.
+    H = qp.C[15][:4]
+    assert len(res.s) == 16 and res.s[15].shape == (4,) and res.s[3].shape == (0,)
+    np.testing.assert_allclose(res.s[15], np.maximum(H @ res.x[15], 0.0), atol=1e-6)
     assert res.solve_time_us > 0 and res.dual_residual >= 0
-    solver = flight_sw.OcpSolver(6, qp.nu, qp.nc)
+    solver = flight_sw.OcpSolver(6, qp.nu, qp.nc, qp.ns if qp.idxs else None)
     assert solver.N == 15
-    again = solver.solve(*qp.args())
+    again = solver.solve(*qp.args(), **qp.kw())
     assert again.objective == pytest.approx(res.objective, rel=1e-12)
     docking = docking_qp(5, np.random.default_rng(0))
-    assert flight_sw.solve_ocp_qp(*docking.args()).u[5].shape == (0,)
+    assert flight_sw.solve_ocp_qp(*docking.args(), **docking.kw()).u[5].shape == (0,)
 
 
 def test_nan_gives_invalid_input():
     qp = approach_qp(5, np.random.default_rng(1))
     qp.Q[2] = qp.Q[2].copy()
     qp.Q[2][1, 1] = np.nan
-    assert flight_sw.solve_ocp_qp(*qp.args()).status == "invalid_input"
+    assert flight_sw.solve_ocp_qp(*qp.args(), **qp.kw()).status == "invalid_input"
     x0 = qp.x0.copy()
     x0[0] = np.inf
     clean = approach_qp(5, np.random.default_rng(1))
-    assert flight_sw.solve_ocp_qp(*clean.args()[:-1], x0).status == "invalid_input"
+    assert flight_sw.solve_ocp_qp(*clean.args()[:-1], x0, **clean.kw()).status == "invalid_input"
 
 
 def test_shape_errors_raise_value_error():
@@ -184,7 +188,7 @@ def test_shape_errors_raise_value_error():
         flight_sw.solve_ocp_qp(*args, mode="fast")
     with pytest.raises(ValueError):
         flight_sw.solve_ocp_qp(*args[:1], [np.zeros((6, 3, 2))] * 5, *args[2:])
-    solver = flight_sw.OcpSolver(6, qp.nu, qp.nc)
+    solver = flight_sw.OcpSolver(6, qp.nu, qp.nc, qp.ns if qp.idxs else None)
     other = docking_qp(6, np.random.default_rng(0))
     with pytest.raises(ValueError, match="dimensions"):
         solver.solve(*other.args())
@@ -192,7 +196,7 @@ def test_shape_errors_raise_value_error():
 
 def test_time_limit_reports_time_limit():
     qp = random_mpc_qp(45, np.random.default_rng(3))
-    res = flight_sw.solve_ocp_qp(*qp.args(), time_limit_us=1.0)
+    res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), time_limit_us=1.0)
     assert res.status == "time_limit"
     assert np.all(np.isfinite(res.x))
 
@@ -209,7 +213,7 @@ def test_qp_set_file_roundtrip(tmp_path):
         for name in ("A", "B", "b", "Q", "q", "R", "r", "C", "D", "d"):
             for x, y in zip(getattr(a, name), getattr(b, name)):
                 assert np.array_equal(x, y)
-        assert flight_sw.solve_ocp_qp(*b.args()).objective == flight_sw.solve_ocp_qp(*a.args()).objective
+        assert flight_sw.solve_ocp_qp(*b.args(), **b.kw()).objective == flight_sw.solve_ocp_qp(*a.args(), **a.kw()).objective
     np.savez(tmp_path / "bad.npz", n_qps=np.array(1), **{"qp0/N": np.array(2)})
     with pytest.raises(ValueError, match="x0"):
         load_qp_set(tmp_path / "bad.npz")
@@ -226,4 +230,29 @@ def test_bench_runs_on_a_qp_set_file(tmp_path, capsys):
     out = capsys.readouterr().out
     rows = [line.split() for line in out.splitlines() if line.startswith("docking")]
     assert [r[2] for r in rows] == ["flight_sw", "proxsuite-sparse", "daqp"]
-    assert all(r[7] == "0/2" for r in rows), out  # objectives agree with the reference
+    assert all(r[8] == "0/2" for r in rows), out  # objectives agree with the reference
+
+
+@pytest.mark.parametrize("phase", ["rendezvous", "approach"])
+@pytest.mark.parametrize("N", [5, 30])
+def test_soft_rows_equal_the_qp_with_explicit_slack_inputs(phase, N):
+    """A soft row is the same as a slack input s >= 0 with the row's penalty (bench.qp_forms.expand_soft):
+    the same optimum, the same plan; the slacks reported are the violations at the returned plan."""
+    from bench.qp_forms import expand_soft
+    qp = make(phase, N, 3 * N + 1)
+    quad = [np.full(len(z), 0.5) for z in qp.zs]  # a quadratic penalty too
+    qp = OcpQpData(*qp.args()[:-1], qp.x0, qp.phase, qp.Ts, qp.idxs, qp.zs, quad)
+    soft = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw())
+    explicit = expand_soft(qp)
+    slack = flight_sw.solve_ocp_qp(*explicit.args())
+    assert soft.status == slack.status == "solved"
+    assert soft.objective == pytest.approx(slack.objective, rel=1e-7)
+    assert max(len(u) for u in soft.u) == 3  # the physical inputs only
+    for i in range(N):
+        # (the optimum is flat to ~sqrt(tol f / R): 1e-4 m/s is far below it mattering)
+        np.testing.assert_allclose(soft.u[i], slack.u[i][:3], atol=1e-4)
+    for i in range(N + 1):
+        rows = np.asarray(qp.idxs[i], int)
+        if len(rows):
+            viol = np.maximum(qp.C[i][rows] @ soft.x[i] + qp.D[i][rows] @ soft.u[i] - qp.d[i][rows], 0.0)
+            np.testing.assert_allclose(soft.s[i], viol, atol=1e-12)

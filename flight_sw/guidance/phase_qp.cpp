@@ -13,32 +13,32 @@ constexpr double kDeg = kPi / 180.0;
 PhaseQp::StageLayout PhaseQp::stage(int i) const {
   StageLayout L;
   const bool terminal = (i == N_);
-  auto col = [&L](int width) { int c = L.nu; L.nu += width; return c; };
   auto row = [&L](int height) { int r = L.nc; L.nc += height; return r; };
-  if (!terminal) col(3);  // delta-v
+  auto soft = [&L](int height) { L.ns += height; };
+  if (!terminal) L.nu = 3;  // delta-v
   if (!terminal) L.box_row = row(6);
   switch (phase_) {
     case Phase::Rendezvous:
       if (i >= 1) L.keepout_row = row(1);
       if (one_norm_) {
-        L.t_col = col(6);
         L.t_row = row(12);
+        soft(12);
         if (!terminal) {
-          L.w_col = col(3);
           L.w_row = row(6);
+          soft(6);
         }
       }
       if (terminal && cone_slacks_) {
-        L.slack_col = col(4);
-        L.cone_row = row(8);
+        L.cone_row = row(4);
+        soft(4);
       }
       break;
     case Phase::Approach:
       if (i >= 1) L.keepout_row = row(1);  // the overshoot plane
       if (i >= 1 && params_.margins.approach_speed_cap_mps > 0.0) L.speed_row = row(1);
-      if (cone_slacks_) {
-        L.slack_col = col(4);
-        L.cone_row = row(8);
+      if (i >= 1 && cone_slacks_) {
+        L.cone_row = row(4);
+        soft(4);
       }
       break;
     case Phase::Docking:
@@ -49,11 +49,12 @@ PhaseQp::StageLayout PhaseQp::stage(int i) const {
       }
       break;
   }
-  // Recovery variant: one elastic input e >= 0 per stage lets every hard state row of the stage give
-  // way by e at the cost recovery_weight * e (an exact L-infinity penalty), so the QP is always feasible.
+  // Recovery variant: every hard state row of the stage is soft, at recovery_weight per unit of
+  // violation (an exact penalty), so the QP is always feasible.
   if (recovery_ && i >= 1) {
-    L.elastic_col = col(1);
-    L.elastic_row = row(1);
+    if (L.keepout_row >= 0) soft(1);
+    if (L.speed_row >= 0) soft(1);
+    if (phase_ == Phase::Docking) soft(10);  // the docking cone and |v|_inf; the approach cone is soft already
   }
   return L;
 }
@@ -126,6 +127,7 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
     const StageLayout L = stage(i);
     dims.nu.push_back(L.nu);
     dims.nc.push_back(L.nc);
+    dims.ns.push_back(L.ns);
   }
   qp_ = solver::OcpQp(dims);
   keepout_normals_.assign(N_ + 1, Eigen::Vector3d::Zero());
@@ -147,50 +149,45 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
       qp_.D[i].block<3, 3>(L.box_row + 3, 0) = -Eigen::Matrix3d::Identity();
       // Bounds are set per build (fill_input_box): they follow what the thrusters are known to deliver.
     }
-    if (L.slack_col >= 0) {
-      qp_.r[i].segment<4>(L.slack_col).setConstant(pp.lambda);
-      qp_.D[i].block<4, 4>(L.cone_row, L.slack_col) = -Eigen::Matrix4d::Identity();      // H rho - s <= 0
-      qp_.D[i].block<4, 4>(L.cone_row + 4, L.slack_col) = -Eigen::Matrix4d::Identity();  // -s <= 0
-    }
-    if (L.t_col >= 0) {  // 1-norm state term: t >= +-Q (x - xs), cost 1't
+    int ns = 0;  // soft rows: row index, linear and quadratic penalty
+    auto soft = [&](int row, int height, double linear, double quadratic) {
+      for (int k = 0; k < height; ++k, ++ns) {
+        qp_.idxs[i][ns] = row + k;
+        qp_.zs[i](ns) = linear;
+        qp_.Zs[i](ns) = quadratic;
+      }
+    };
+    if (L.cone_row >= 0 && phase_ != Phase::Docking) soft(L.cone_row, 4, pp.lambda, 0.0);  // H rho <= 0, soft
+    if (L.t_row >= 0) {  // 1-norm state term: +-Q (x - xs) <= 0, soft at 1: |Q (x - xs)|_1
       const Vector6d w = (i < N_ ? Qw_ : Qf_).diagonal();
-      qp_.r[i].segment<6>(L.t_col).setOnes();
       qp_.C[i].block<6, 6>(L.t_row, 0) = w.asDiagonal();
       qp_.C[i].block<6, 6>(L.t_row + 6, 0) = -Matrix6d(w.asDiagonal());
-      qp_.D[i].block<6, 6>(L.t_row, L.t_col) = -Matrix6d::Identity();
-      qp_.D[i].block<6, 6>(L.t_row + 6, L.t_col) = -Matrix6d::Identity();
+      soft(L.t_row, 12, 1.0, 0.0);
     }
-    if (L.w_col >= 0) {  // 1-norm input term: w >= +-R u, cost 1'w
-      qp_.r[i].segment<3>(L.w_col).setOnes();
+    if (L.w_row >= 0) {  // 1-norm input term: +-R u <= 0, soft at 1: |R u|_1
       qp_.D[i].block<3, 3>(L.w_row, 0) = Rw_.asDiagonal();
       qp_.D[i].block<3, 3>(L.w_row + 3, 0) = -Eigen::Matrix3d(Rw_.asDiagonal());
-      qp_.D[i].block<3, 3>(L.w_row, L.w_col) = -Eigen::Matrix3d::Identity();
-      qp_.D[i].block<3, 3>(L.w_row + 3, L.w_col) = -Eigen::Matrix3d::Identity();
+      soft(L.w_row, 6, 1.0, 0.0);
     }
     if (L.vel_row >= 0) {
       qp_.C[i].block<3, 3>(L.vel_row, 3).setIdentity();
       qp_.C[i].block<3, 3>(L.vel_row + 3, 3) = -Eigen::Matrix3d::Identity();
     }
-    if (L.elastic_col >= 0) {
-      const int e = L.elastic_col;
-      qp_.r[i](e) = params_.recovery_weight;
-      qp_.R[i](e, e) = 2.0 * params_.recovery_quadratic;  // keeps the Newton systems well conditioned
-      qp_.D[i](L.elastic_row, e) = -1.0;  // -e <= 0
-      if (L.keepout_row >= 0) qp_.D[i](L.keepout_row, e) = -1.0;
-      if (L.speed_row >= 0) qp_.D[i](L.speed_row, e) = -1.0;
-      if (phase_ == Phase::Docking) {     // the docking cone is hard; the approach cone is already soft
-        for (int k = 0; k < 4; ++k) qp_.D[i](L.cone_row + k, e) = -1.0;
-        for (int k = 0; k < 6; ++k) qp_.D[i](L.vel_row + k, e) = -1.0;
+    if (recovery_ && i >= 1) {
+      const double lin = params_.recovery_weight, quad = 2.0 * params_.recovery_quadratic;
+      if (L.keepout_row >= 0) soft(L.keepout_row, 1, lin, quad);
+      if (L.speed_row >= 0) soft(L.speed_row, 1, lin, quad);
+      if (phase_ == Phase::Docking) {  // the docking cone is hard; the approach cone is already soft
+        soft(L.cone_row, 4, lin, quad);
+        soft(L.vel_row, 6, lin, quad);
       }
     }
   }
 }
 
-int PhaseQp::slack_offset(int i) const { return stage(i).slack_col; }
 int PhaseQp::keepout_row(int i) const { return stage(i).keepout_row; }
 int PhaseQp::cone_row(int i) const { return stage(i).cone_row; }
 int PhaseQp::velocity_row(int i) const { return stage(i).vel_row; }
-int PhaseQp::elastic_offset(int i) const { return stage(i).elastic_col; }
 
 void PhaseQp::build(const Vector6d& x0, const TargetState& target, const EstimateQuality& quality) {
   x0_ = x0;

@@ -1,7 +1,8 @@
 // The three phase QPs of the dissertation as stage-wise OCP QPs (solver/ocp_qp.hpp):
 //   rendezvous (eq 3.7), approach (eq 3.10), docking (eq 3.14), plus the 1-norm rendezvous (eq 2.10).
 // Costs use the dissertation's ||e||_Q^2 = e'Qe, so the OCP's 1/2 e'Qe gets 2Q. Soft penalties
-// lambda 1'(H rho)_+ become slack inputs s >= 0, s >= H rho with linear cost lambda.
+// lambda 1'(H rho)_+ are soft rows of the OCP QP (H rho <= 0 with linear penalty lambda), so every
+// stage has the 3 physical inputs (delta-v) only, and stage N none.
 // State constraints are put on stages 1..N: x_0 is the measurement, a constraint on it could only make
 // the QP infeasible. A builder allocates once; build() refills values in place (no heap allocation).
 #pragma once
@@ -28,17 +29,17 @@ KeepoutPlanes plan_keepout_rotation(const Eigen::Vector3d& rho_m, const Eigen::V
 
 class PhaseQp {
  public:
-  // Input columns and inequality rows of one stage; -1 when the block is absent.
+  // Inequality rows of one stage; -1 when the block is absent. Soft blocks (the cone penalty, the
+  // 1-norm rows, and in the recovery variant every hard state row) are listed in the QP's idxs.
   struct StageLayout {
-    int slack_col = -1, t_col = -1, w_col = -1, elastic_col = -1;
-    int box_row = -1, keepout_row = -1, cone_row = -1, t_row = -1, w_row = -1, vel_row = -1, speed_row = -1,
-        elastic_row = -1;
-    int nu = 0, nc = 0;
+    int box_row = -1, keepout_row = -1, cone_row = -1, t_row = -1, w_row = -1, vel_row = -1, speed_row = -1;
+    int nu = 0, nc = 0, ns = 0;
   };
   StageLayout stage(int i) const;  // blocks follow a fixed order; each present block takes the next columns/rows
 
   // recovery = true builds the same QP with the hard state constraints (keep-out plane, overshoot plane,
-  // docking cone and |v|_inf) made elastic: the QP the guidance solves when the nominal one is infeasible.
+  // docking cone and |v|_inf) made soft rows with penalty recovery_weight * e + recovery_quadratic * e^2
+  // per row and metre (or m/s) of violation: the QP the guidance solves when the nominal one is infeasible.
   PhaseQp(Phase phase, const GuidanceParams& params, bool recovery = false);
 
   // Fill the QP for the chaser state x0 (LVLH) with the target as it is at the solve time; `quality`
@@ -63,11 +64,9 @@ class PhaseQp {
   const std::vector<Vector6d>& reference() const { return reference_; }  // set point / port track, N+1
 
   // Column and row layout, so tests can find the blocks they check.
-  int slack_offset(int i) const;           // first cone-slack input on this stage, -1 if none
   int keepout_row(int i) const;            // keep-out / overshoot row, -1 if none
-  int cone_row(int i) const;               // first row of the cone (slack rows or hard cone rows), -1 if none
+  int cone_row(int i) const;               // first of the 4 cone rows (soft or hard), -1 if none
   int velocity_row(int i) const;           // first of the 6 |v|_inf rows (docking), -1 if none
-  int elastic_offset(int i) const;         // the recovery QP's elastic input, -1 if none
   bool recovery() const { return recovery_; }
 
  private:

@@ -32,8 +32,13 @@ TargetState target_of(const Eigen::Vector4d& q_wxyz, const Eigen::Vector3d& omeg
 }
 
 py::dict qp_lists(const solver::OcpQp& qp, const Vector6d& x0) {
-  py::list A, B, b, Q, q, R, r, C, D, d;
+  py::list A, B, b, Q, q, R, r, C, D, d, idxs, zs, Zs;
   for (int i = 0; i <= qp.dims.N; ++i) {
+    if (!qp.dims.ns.empty()) {
+      idxs.append(py::cast(qp.idxs[i]));
+      zs.append(py::cast(qp.zs[i]));
+      Zs.append(py::cast(qp.Zs[i]));
+    }
     if (i < qp.dims.N) {
       A.append(py::cast(qp.A[i]));
       B.append(py::cast(qp.B[i]));
@@ -50,6 +55,9 @@ py::dict qp_lists(const solver::OcpQp& qp, const Vector6d& x0) {
   py::dict out;
   out["A"] = A; out["B"] = B; out["b"] = b; out["Q"] = Q; out["q"] = q; out["R"] = R; out["r"] = r;
   out["C"] = C; out["D"] = D; out["d"] = d;
+  if (!qp.dims.ns.empty()) {  // soft rows: row indices, linear and quadratic penalties
+    out["idxs"] = idxs; out["zs"] = zs; out["Zs"] = Zs;
+  }
   out["x0"] = py::cast(Eigen::VectorXd(x0));
   return out;
 }
@@ -323,11 +331,9 @@ void bind_guidance(py::module_& m) {
       .def_property_readonly("keepout_rotation_axis", [](const PhaseQp& b) { return b.keepout_plan().rotation_axis; })
       .def_property_readonly("keepout_natural_way", [](const PhaseQp& b) { return b.keepout_plan().natural_way; })
       .def_property_readonly("reference", &PhaseQp::reference, "set point / port track per stage, N+1 x 6")
-      .def("slack_offset", &PhaseQp::slack_offset, py::arg("stage"))
       .def("keepout_row", &PhaseQp::keepout_row, py::arg("stage"))
       .def("cone_row", &PhaseQp::cone_row, py::arg("stage"))
-      .def("velocity_row", &PhaseQp::velocity_row, py::arg("stage"))
-      .def("elastic_offset", &PhaseQp::elastic_offset, py::arg("stage"));
+      .def("velocity_row", &PhaseQp::velocity_row, py::arg("stage"));
 
   m.def(
       "build_phase_qp",

@@ -19,9 +19,10 @@ struct SolveResult {
   Matrix x;                // (N+1) x nx
   py::list u;              // N+1 arrays, u[N] may be empty
   py::list lam;            // N+1 arrays of inequality multipliers
+  py::list s;              // N+1 arrays of soft slacks (in the order of idxs)
   Matrix pi;               // N x nx dynamics multipliers
   std::string status;
-  int iterations = 0;
+  int iterations = 0, back_solves = 0;
   double objective = 0.0, primal_residual = 0.0, dual_residual = 0.0, solve_time_us = 0.0;
 };
 
@@ -70,7 +71,8 @@ std::vector<T> cast_list(const py::sequence& seq, const char* name) {
 // which answers "invalid_input").
 OcpQp build_qp(const py::sequence& A, const py::sequence& B, const py::sequence& b, const py::sequence& Q,
                const py::sequence& q, const py::sequence& R, const py::sequence& r, const py::sequence& C,
-               const py::sequence& D, const py::sequence& d) {
+               const py::sequence& D, const py::sequence& d, const py::object& idxs, const py::object& zs,
+               const py::object& Zs) {
   const size_t N = A.size();
   if (N < 1) throw py::value_error("A must hold N >= 1 matrices (one per dynamics stage)");
   std::ostringstream err;
@@ -126,6 +128,25 @@ OcpQp build_qp(const py::sequence& A, const py::sequence& B, const py::sequence&
     vshape("d", i, qp.d[i], k);
   }
   if (!err.str().empty()) throw py::value_error("inconsistent QP shapes: " + err.str());
+  // Soft rows: all three lists or none.
+  if (idxs.is_none() != zs.is_none() || idxs.is_none() != Zs.is_none())
+    throw py::value_error("idxs, zs and Zs (soft rows) go together");
+  if (!idxs.is_none()) {
+    const auto si = idxs.cast<py::sequence>(), sz = zs.cast<py::sequence>(), sZ = Zs.cast<py::sequence>();
+    if (si.size() != N + 1 || sz.size() != N + 1 || sZ.size() != N + 1)
+      throw py::value_error("idxs, zs, Zs need N+1 entries");
+    dims.ns.resize(N + 1);
+    for (size_t i = 0; i <= N; ++i) {
+      qp.idxs.push_back(si[i].cast<std::vector<int>>());
+      qp.zs.push_back(cast_block<Vector>(sz[i], "zs", i));
+      qp.Zs.push_back(cast_block<Vector>(sZ[i], "Zs", i));
+      dims.ns[i] = static_cast<int>(qp.idxs[i].size());
+    }
+    const std::string v = qp.validate();
+    if (!v.empty() && (v.find("idxs") != std::string::npos || v.find("zs") != std::string::npos ||
+                       v.find("Zs") != std::string::npos || v.find("ns") != std::string::npos))
+      throw py::value_error("soft rows: " + v);
+  }
   return qp;
 }
 
@@ -135,6 +156,7 @@ SolveResult collect(const FastMpcSolver& solver) {
   const OcpQpDims& dims = solver.dims();
   res.status = to_string(info.status);
   res.iterations = info.iterations;
+  res.back_solves = info.back_solves;
   res.objective = info.objective;
   res.primal_residual = info.primal_residual;
   res.dual_residual = info.dual_residual;
@@ -146,6 +168,7 @@ SolveResult collect(const FastMpcSolver& solver) {
     res.x.row(i) = x[i].transpose();
     res.u.append(py::cast(solver.u()[i]));
     res.lam.append(py::cast(solver.lambda()[i]));
+    res.s.append(py::cast(solver.soft_slack()[i]));
     if (i < dims.N) res.pi.row(i) = solver.pi()[i].transpose();
   }
   return res;
@@ -164,17 +187,20 @@ Vector cast_x0(const py::handle& x0, int nx) {
 // Reusable solver: dimensions fixed at construction, workspace allocated once, warm start kept.
 class PyOcpSolver {
  public:
-  PyOcpSolver(int nx, std::vector<int> nu, std::vector<int> nc, const std::string& mode, double tol,
-              std::optional<int> max_iter, double barrier, bool warm_start, double time_limit_us)
-      : solver_(make_dims(nx, std::move(nu), std::move(nc)),
+  PyOcpSolver(int nx, std::vector<int> nu, std::vector<int> nc, std::optional<std::vector<int>> ns,
+              const std::string& mode, double tol, std::optional<int> max_iter, double barrier, bool warm_start,
+              double time_limit_us)
+      : solver_(make_dims(nx, std::move(nu), std::move(nc), std::move(ns)),
                 make_settings(mode, tol, max_iter, barrier, warm_start, time_limit_us)) {}
 
   SolveResult solve(const py::sequence& A, const py::sequence& B, const py::sequence& b, const py::sequence& Q,
                     const py::sequence& q, const py::sequence& R, const py::sequence& r, const py::sequence& C,
-                    const py::sequence& D, const py::sequence& d, const py::handle& x0) {
-    OcpQp qp = build_qp(A, B, b, Q, q, R, r, C, D, d);
+                    const py::sequence& D, const py::sequence& d, const py::handle& x0, const py::object& idxs,
+                    const py::object& zs, const py::object& Zs) {
+    OcpQp qp = build_qp(A, B, b, Q, q, R, r, C, D, d, idxs, zs, Zs);
     const OcpQpDims& dims = solver_.dims();
-    if (qp.dims.N != dims.N || qp.dims.nx != dims.nx || qp.dims.nu != dims.nu || qp.dims.nc != dims.nc)
+    if (qp.dims.N != dims.N || qp.dims.nx != dims.nx || qp.dims.nu != dims.nu || qp.dims.nc != dims.nc ||
+        qp.dims.ns != dims.ns)
       throw py::value_error("QP dimensions differ from the ones this OcpSolver was built for");
     Vector xv = cast_x0(x0, dims.nx);
     {
@@ -186,12 +212,13 @@ class PyOcpSolver {
   FastMpcSolver& solver() { return solver_; }
 
  private:
-  static OcpQpDims make_dims(int nx, std::vector<int> nu, std::vector<int> nc) {
+  static OcpQpDims make_dims(int nx, std::vector<int> nu, std::vector<int> nc, std::optional<std::vector<int>> ns) {
     OcpQpDims d;
     d.N = static_cast<int>(nu.size()) - 1;
     d.nx = nx;
     d.nu = std::move(nu);
     d.nc = std::move(nc);
+    if (ns) d.ns = std::move(*ns);
     const std::string err = d.validate();
     if (!err.empty()) throw py::value_error("invalid OcpSolver dimensions: " + err);
     return d;
@@ -206,10 +233,12 @@ void bind_solver(py::module_& m) {
       .def_readonly("x", &SolveResult::x, "states, (N+1) x nx; x[0] is the given initial state")
       .def_readonly("u", &SolveResult::u, "inputs, list of N+1 arrays (u[N] may be empty)")
       .def_readonly("lam", &SolveResult::lam, "inequality multipliers, list of N+1 arrays")
+      .def_readonly("s", &SolveResult::s, "soft slacks (violations of the soft rows), list of N+1 arrays")
       .def_readonly("pi", &SolveResult::pi, "dynamics multipliers, N x nx")
       .def_readonly("status", &SolveResult::status,
                     "'solved', 'max_iter', 'infeasible', 'invalid_input', 'numerical_error' or 'time_limit'")
-      .def_readonly("iterations", &SolveResult::iterations)
+      .def_readonly("iterations", &SolveResult::iterations, "Newton systems factored")
+      .def_readonly("back_solves", &SolveResult::back_solves, "solves with those factors")
       .def_readonly("objective", &SolveResult::objective, "objective at the returned iterate")
       .def_readonly("primal_residual", &SolveResult::primal_residual,
                     "inf-norm of the dynamics residual and of the inequality violation")
@@ -226,9 +255,10 @@ void bind_solver(py::module_& m) {
       "solve_ocp_qp",
       [](const py::sequence& A, const py::sequence& B, const py::sequence& b, const py::sequence& Q,
          const py::sequence& q, const py::sequence& R, const py::sequence& r, const py::sequence& C,
-         const py::sequence& D, const py::sequence& d, const py::handle& x0, double tol, std::optional<int> max_iter,
-         const std::string& mode, double barrier, double time_limit_us) {
-        OcpQp qp = build_qp(A, B, b, Q, q, R, r, C, D, d);
+         const py::sequence& D, const py::sequence& d, const py::handle& x0, const py::object& idxs,
+         const py::object& zs, const py::object& Zs, double tol, std::optional<int> max_iter, const std::string& mode,
+         double barrier, double time_limit_us) {
+        OcpQp qp = build_qp(A, B, b, Q, q, R, r, C, D, d, idxs, zs, Zs);
         Vector xv = cast_x0(x0, qp.dims.nx);
         FastMpcSolver solver(qp.dims, make_settings(mode, tol, max_iter, barrier, false, time_limit_us));
         {
@@ -238,13 +268,17 @@ void bind_solver(py::module_& m) {
         return collect(solver);
       },
       py::arg("A"), py::arg("B"), py::arg("b"), py::arg("Q"), py::arg("q"), py::arg("R"), py::arg("r"),
-      py::arg("C"), py::arg("D"), py::arg("d"), py::arg("x0"), py::kw_only(), py::arg("tol") = 1e-8,
+      py::arg("C"), py::arg("D"), py::arg("d"), py::arg("x0"), py::kw_only(), py::arg("idxs") = py::none(),
+      py::arg("zs") = py::none(), py::arg("Zs") = py::none(), py::arg("tol") = 1e-8,
       py::arg("max_iter") = py::none(), py::arg("mode") = "converged", py::arg("barrier") = 1e-4,
       py::arg("time_limit_us") = 0.0,
       R"doc(Solve the stage-wise OCP QP
 
     minimize   sum_{i=0..N} 1/2 x_i'Q_i x_i + q_i'x_i + 1/2 u_i'R_i u_i + r_i'u_i
     subject to x_0 = x0, x_{i+1} = A_i x_i + B_i u_i + b_i (i < N), C_i x_i + D_i u_i <= d_i (i <= N)
+
+Soft rows (optional, all three or none): idxs[i] lists rows of stage i that may be violated by
+s >= 0 at the cost zs[i][k] s + Zs[i][k] s^2 / 2 (penalties >= 0); result.s holds the violations.
 
 A, B, b are lists over i = 0..N-1; Q, q, R, r, C, D, d over i = 0..N (R_N, r_N, D_N may have zero
 columns). mode 'converged' is the primal-dual interior point to relative accuracy tol;
@@ -254,14 +288,16 @@ gives status 'invalid_input'.)doc");
 
   py::class_<PyOcpSolver>(m, "OcpSolver",
                           "Reusable Fast MPC solver: workspace allocated once, warm start from the shifted plan.")
-      .def(py::init<int, std::vector<int>, std::vector<int>, const std::string&, double, std::optional<int>, double,
-                    bool, double>(),
-           py::arg("nx"), py::arg("nu"), py::arg("nc"), py::kw_only(), py::arg("mode") = "converged",
+      .def(py::init<int, std::vector<int>, std::vector<int>, std::optional<std::vector<int>>, const std::string&, double,
+                    std::optional<int>, double, bool, double>(),
+           py::arg("nx"), py::arg("nu"), py::arg("nc"), py::arg("ns") = py::none(), py::kw_only(),
+           py::arg("mode") = "converged",
            py::arg("tol") = 1e-8, py::arg("max_iter") = py::none(), py::arg("barrier") = 1e-4,
            py::arg("warm_start") = true, py::arg("time_limit_us") = 0.0,
-           "nu and nc list the inputs and inequality rows of stages 0..N (so N = len(nu) - 1)")
+           "nu, nc (and ns) list the inputs, inequality rows (and soft rows) of stages 0..N (N = len(nu) - 1)")
       .def("solve", &PyOcpSolver::solve, py::arg("A"), py::arg("B"), py::arg("b"), py::arg("Q"), py::arg("q"),
-           py::arg("R"), py::arg("r"), py::arg("C"), py::arg("D"), py::arg("d"), py::arg("x0"))
+           py::arg("R"), py::arg("r"), py::arg("C"), py::arg("D"), py::arg("d"), py::arg("x0"), py::kw_only(),
+           py::arg("idxs") = py::none(), py::arg("zs") = py::none(), py::arg("Zs") = py::none())
       .def("shift_warm_start", [](PyOcpSolver& s) { s.solver().shift_warm_start(); },
            "shift the last plan one stage: the warm start for the next control period")
       .def("reset_warm_start", [](PyOcpSolver& s) { s.solver().reset_warm_start(); })

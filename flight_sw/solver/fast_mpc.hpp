@@ -1,30 +1,31 @@
-// Fast MPC solver for the stage-wise OCP QP of ocp_qp.hpp (Wang & Boyd 2010; seeds/000 §III).
+// Fast MPC solver for the stage-wise OCP QP of ocp_qp.hpp (Wang & Boyd, "Fast model predictive
+// control using online optimization", 2010).
 //
-// Two modes share one structure-exploiting Newton step: a Riccati recursion over the stages,
-// O(N (nx+nu)^3) (kernels compiled with nx = 6 and nu in {3, 4, 7} fixed, generic otherwise).
-//  - Mode::Converged: primal-dual interior point (Mehrotra predictor-corrector, Gondzio
-//    centrality correctors when steps get short, iterative refinement in the late iterations) to
+// Two methods share one structure-exploiting Newton step (kkt.hpp, riccati.cpp: a Riccati
+// recursion over the stages, soft rows eliminated into it as diagonal terms, fixed-size kernels
+// for nx = 6, nu = 3):
+//  - Mode::Converged (ipm.cpp): primal-dual interior point, Mehrotra predictor-corrector with a
+//    Gondzio corrector when the step is short and iterative refinement in the late iterations, to
 //    Settings::tol on the relative primal and dual residuals and duality gap.
-//  - Mode::FixedBarrier: the seed's infeasible-start Newton method on the log-barrier problem
-//    f(z) - kappa sum log(d - Gz) with a fixed weight kappa (Settings::barrier), backtracking line
-//    search (residual norm while the dynamics are violated, then the barrier objective), few
-//    iterations, warm started from the shifted previous plan. Its iterates satisfy the
-//    inequalities strictly; the exact barrier minimiser is at most m*kappa worse than the optimum
-//    (m = rows). A cold start (or a warm plan outside the new inequalities) first follows the
-//    primal-dual central path down to complementarity ~kappa, then hands over to Newton.
+//  - Mode::FixedBarrier (fixed_barrier.cpp): the seed's infeasible-start Newton method on the
+//    log-barrier problem with a fixed weight kappa; its iterates satisfy the rows strictly and its
+//    answer is at most m*kappa worse than the optimum (m = rows).
+// Infeasibility (infeasibility.cpp) is decided from the interior-point iterates: a scaled dual
+// iterate that is a Farkas certificate for the hard rows and the dynamics. No second solve.
 // Constant rows (no decision variable in them, e.g. stage-0 rows of x0 alone) are checked once:
-// violated means Infeasible at once, satisfied means ignored. Infeasibility otherwise is decided
-// by an elastic phase-1 problem (minimise the summed normalised violation, same Riccati step),
-// run when the iterations stall, break down or hit the cap with a sizeable primal residual; its
-// optimum is positive exactly when the QP has no solution. Info::iterations counts all Newton
-// systems solved, phase 1 included.
+// a violated hard one means Infeasible at once.
+//
+// Worst case: solve() factors at most Settings::max_iter Newton systems, each followed by at most
+// 2 + max_correctors + 2 * max_refinements back-solves (Info::iterations, Info::back_solves); the
+// work per factorisation and per back-solve is fixed by the dimensions (no data-dependent loops
+// besides the fixed-barrier line search, <= ls_max_halvings trial points per iteration).
 //
 // Warm start (Settings::warm_start): the next solve starts from the last solution, shifted one
-// stage by shift_warm_start() (u_i <- u_{i+1}, x_i <- x_{i+1}, duals alike; the tail is kept, and
-// in Converged mode its last state re-propagated through the new QP's dynamics).
+// stage by shift_warm_start().
 //
-// Data flow as in OSQP: dims + settings -> constructor allocates every buffer -> solve(qp, x0) does
-// no heap allocation (tests/cpp/test_solver_fast_mpc_alloc.cpp) -> info(), x(), u().
+// Data flow as in OSQP: dims + settings -> constructor allocates the workspace (one arena,
+// workspace.hpp) -> solve(qp, x0) does no heap allocation (tests/cpp/test_solver_fast_mpc_alloc.cpp)
+// -> info(), x(), u(), lambda(), pi(), soft_slack().
 #pragma once
 
 #include <chrono>
@@ -32,56 +33,63 @@
 #include <vector>
 
 #include "flight_sw/solver/ocp_qp.hpp"
+#include "flight_sw/solver/settings.hpp"
 
 namespace rvd::solver {
 
-// Settings for the seed's Fast MPC mode: fixed barrier weight, small iteration cap, warm start.
-Settings fixed_barrier_settings(double kappa = 1e-4, int max_iter = 15);
+namespace detail {
+struct Workspace;
+struct Kernels;
+}  // namespace detail
 
 class FastMpcSolver {
  public:
-  explicit FastMpcSolver(const OcpQpDims& dims, const Settings& settings = {});  // allocates the workspace
+  explicit FastMpcSolver(const OcpQpDims& dims, const Settings& settings = Settings::converged());
   ~FastMpcSolver();
   FastMpcSolver(FastMpcSolver&&) noexcept;
   FastMpcSolver& operator=(FastMpcSolver&&) noexcept;
 
   Status solve(const OcpQp& qp, const Vector& x0);  // no heap allocation; never throws; fills info()
   const Info& info() const { return info_; }
-  const std::vector<Vector>& x() const;  // N+1 states of the last solve
-  const std::vector<Vector>& u() const;  // N+1 inputs (u[N] has dims.nu[N] entries, maybe 0)
-  void shift_warm_start();               // shift the last solution one stage: the warm start for the next period
-  void reset_warm_start();               // forget the previous solution: the next solve starts cold
+  const std::vector<Vector>& x() const { return x_; }  // N+1 states of the last solve
+  const std::vector<Vector>& u() const { return u_; }  // N+1 inputs (u[N] has dims.nu[N] entries, maybe 0)
+  // Inequality multipliers (N+1 vectors, nc[i] each; 0 on constant rows) and dynamics multipliers
+  // (N vectors) of the last solve. In FixedBarrier mode lam = kappa / slack, the barrier's duals.
+  const std::vector<Vector>& lambda() const { return lam_; }
+  const std::vector<Vector>& pi() const { return pi_; }
+  // Soft slacks (N+1 vectors, ns[i] each, in the order of idxs): each soft row's violation
+  // max(g'z - d, 0) at the returned plan.
+  const std::vector<Vector>& soft_slack() const { return sig_; }
+  void shift_warm_start();  // shift the last solution one stage: the warm start for the next period
+  void reset_warm_start();  // forget the previous solution: the next solve starts cold
   const OcpQpDims& dims() const { return dims_; }
   Settings& settings() { return settings_; }
+  const Settings& settings() const { return settings_; }
+  size_t workspace_bytes() const;  // the arena's size
 
-  // Inequality multipliers (N+1 vectors, nc[i] each) and dynamics multipliers (N vectors) of the
-  // last solve. In FixedBarrier mode lambda = kappa / slack, the barrier's implied duals.
-  const std::vector<Vector>& lambda() const;
-  const std::vector<Vector>& pi() const;
-
-  struct Work;  // iterate, residuals, Riccati factors (defined in fast_mpc.cpp)
+  // Internal: the methods (ipm.cpp, fixed_barrier.cpp, infeasibility.cpp).
+  // mu_floor > 0: follow the central path only down to complementarity mu_floor and stop once the
+  // rows hold strictly with mu near it (the barrier mode's cold start).
+  Status solve_converged(const OcpQp& qp, bool warm, int max_iter, double mu_floor, double warm_push);
+  Status solve_barrier(const OcpQp& qp, bool warm);
+  bool infeasibility_certificate(const OcpQp& qp);  // true when the dual iterate proves infeasibility
+  bool time_up() const;
 
  private:
   using Clock = std::chrono::steady_clock;
   bool inputs_ok(const OcpQp& qp, const Vector& x0) const;
-  // mu_floor > 0: follow the central path only down to complementarity mu_floor and stop once the
-  // inequalities hold strictly with mu near it (the barrier mode's cold start).
-  // warm_push: how far into the interior a warm start's slacks and duals are pushed.
-  Status solve_converged(Work& w, const OcpQp& qp, bool warm, int max_iter, double tol, double mu_floor,
-                         double warm_push);
-  Status solve_barrier(const OcpQp& qp, bool warm);
-  bool phase1_infeasible(const OcpQp& qp);  // true when the elastic problem proves infeasibility
-  bool time_up() const;
+  void publish(const OcpQp& qp);  // iterate -> x_, u_, lam_, pi_, sig_
 
   OcpQpDims dims_;
   Settings settings_;
   Info info_;
-  std::unique_ptr<Work> work_;    // the QP itself
-  std::unique_ptr<Work> work1_;   // the elastic phase-1 problem (one extra input and row per stage)
-  std::unique_ptr<OcpQp> qp1_;    // its data, filled in place from the QP
+  std::unique_ptr<detail::Workspace> work_;
+  const detail::Kernels* kernels_ = nullptr;
+  std::vector<Vector> x_, u_, lam_, pi_, sig_;  // the solution, sized once
   Clock::time_point t_start_;
   bool has_warm_ = false;
   bool shifted_ = false;  // the warm plan was shifted: its tail x_N needs the new QP's dynamics
+  friend struct SolverAccess;
 };
 
 }  // namespace rvd::solver

@@ -25,6 +25,11 @@ std::string OcpQpDims::validate() const {
     if (nu[i] < 0) err << "nu[" << i << "] < 0; ";
   for (size_t i = 0; i < nc.size(); ++i)
     if (nc[i] < 0) err << "nc[" << i << "] < 0; ";
+  if (!ns.empty()) {
+    if (ns.size() != nc.size()) err << "ns needs N+1 = " << N + 1 << " entries or none (got " << ns.size() << "); ";
+    for (size_t i = 0; i < ns.size() && i < nc.size(); ++i)
+      if (ns[i] < 0 || ns[i] > nc[i]) err << "ns[" << i << "] must be in 0..nc[" << i << "]; ";
+  }
   return err.str();
 }
 
@@ -48,6 +53,17 @@ OcpQp::OcpQp(const OcpQpDims& dims_) : dims(dims_) {
     C[i] = Matrix::Zero(dims.nc[i], nx);
     D[i] = Matrix::Zero(dims.nc[i], dims.nu[i]);
     d[i] = Vector::Zero(dims.nc[i]);
+  }
+  if (!dims.ns.empty()) {
+    idxs.resize(N + 1);
+    zs.resize(N + 1);
+    Zs.resize(N + 1);
+    for (int i = 0; i <= N; ++i) {
+      idxs[i].assign(dims.ns[i], 0);
+      for (int k = 0; k < dims.ns[i]; ++k) idxs[i][k] = k;  // a placeholder: callers say which rows
+      zs[i] = Vector::Zero(dims.ns[i]);
+      Zs[i] = Vector::Zero(dims.ns[i]);
+    }
   }
 }
 
@@ -87,6 +103,25 @@ std::string OcpQp::validate() const {
     check_block(err, "C", i, C[i], dims.nc[i], nx);
     check_block(err, "D", i, D[i], dims.nc[i], dims.nu[i]);
     check_block(err, "d", i, d[i], dims.nc[i], 1);
+  }
+  if (dims.ns.empty()) return err.str();
+  if (idxs.size() != N + 1 || zs.size() != N + 1 || Zs.size() != N + 1) {
+    err << "idxs, zs, Zs need N+1 = " << N + 1 << " entries; ";
+    return err.str();
+  }
+  for (size_t i = 0; i <= N; ++i) {
+    const int ns = dims.ns[i];
+    if (static_cast<int>(idxs[i].size()) != ns) err << "idxs[" << i << "] needs " << ns << " entries; ";
+    check_block(err, "zs", i, zs[i], ns, 1);
+    check_block(err, "Zs", i, Zs[i], ns, 1);
+    for (size_t k = 0; k < idxs[i].size(); ++k) {
+      const int j = idxs[i][k];
+      if (j < 0 || j >= dims.nc[i]) err << "idxs[" << i << "][" << k << "] = " << j << " is not a row; ";
+      for (size_t t = 0; t < k; ++t)
+        if (idxs[i][t] == j) err << "idxs[" << i << "] lists row " << j << " twice; ";
+    }
+    if (zs[i].size() == ns && Zs[i].size() == ns && ((zs[i].array() < 0.0).any() || (Zs[i].array() < 0.0).any()))
+      err << "zs[" << i << "], Zs[" << i << "] must be >= 0; ";
   }
   return err.str();
 }

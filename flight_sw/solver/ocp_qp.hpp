@@ -1,12 +1,17 @@
-// Stage-wise optimal-control QP (the structure of HPIPM's OCP QP) and the Fast MPC solver API.
+// Stage-wise optimal-control QP (the structure of HPIPM's OCP QP), with soft constraints.
 //
 //   minimize   sum_{i=0..N} 1/2 x_i'Q_i x_i + q_i'x_i + 1/2 u_i'R_i u_i + r_i'u_i
+//                         + sum_{k soft on stage i} zs_ik s_ik + 1/2 Zs_ik s_ik^2
 //   subject to x_0 = x0,
 //              x_{i+1} = A_i x_i + B_i u_i + b_i          i = 0..N-1
-//              C_i x_i + D_i u_i <= d_i                    i = 0..N
+//              C_i x_i + D_i u_i <= d_i                    i = 0..N, hard rows
+//              (C_i x_i + D_i u_i)_j - s_ik <= d_ij,  s_ik >= 0    for the soft rows j = idxs_i[k]
 //
-// nx states on every stage, nu[i] inputs and nc[i] inequality rows on stage i; nu[N] may be 0.
-// Slack variables of soft (penalty) constraints are ordinary inputs with a linear cost r_i.
+// nx states on every stage, nu[i] inputs, nc[i] inequality rows and ns[i] soft rows on stage i;
+// nu[N] may be 0. A soft row is a penalty, not a constraint: its slack s >= 0 pays zs per unit of
+// violation (an exact penalty once zs exceeds the row's multiplier) plus Zs/2 per unit squared.
+// The slacks are no inputs: the solver eliminates them row by row inside its Newton systems, so a
+// soft row costs about what a hard row costs.
 //
 // Data flow as in OSQP: dimensions -> solver workspace (allocated once, in the constructor) ->
 // solve(qp, x0) (no heap allocation) -> info() / x() / u().
@@ -16,6 +21,8 @@
 
 #include <string>
 #include <vector>
+
+#include "flight_sw/solver/settings.hpp"  // the solver settings travel with the problem data
 
 namespace rvd::solver {
 
@@ -27,9 +34,11 @@ struct OcpQpDims {
   int nx = 0;           // states per stage
   std::vector<int> nu;  // inputs on stage i, size N+1
   std::vector<int> nc;  // inequality rows on stage i, size N+1
+  std::vector<int> ns;  // of those, soft rows on stage i, size N+1 (empty: none anywhere)
 
   // A uniform shape: nu inputs and nc rows on stages 0..N-1, nu_N inputs and nc_N rows on stage N.
   static OcpQpDims uniform(int N, int nx, int nu, int nc, int nu_N = 0, int nc_N = -1);
+  int soft_rows(int i) const { return ns.empty() ? 0 : ns[i]; }
   // Empty string when consistent, else what is wrong.
   std::string validate() const;
 };
@@ -44,10 +53,13 @@ struct OcpQp {
   std::vector<Vector> q, r;  // nx, nu[i]
   std::vector<Matrix> C, D;  // nc[i] x nx, nc[i] x nu[i] (i = 0..N)
   std::vector<Vector> d;     // nc[i]
+  std::vector<std::vector<int>> idxs;  // ns[i] distinct row indices of C_i/D_i that are soft
+  std::vector<Vector> zs, Zs;          // ns[i] linear and quadratic penalties, >= 0 each
 
   OcpQp() = default;
   explicit OcpQp(const OcpQpDims& dims);
-  // Empty string when every block has the size dims says and every entry is finite.
+  // Empty string when every block has the size dims says, every entry is finite, the soft row
+  // indices are distinct and in range and the penalties are >= 0.
   std::string validate() const;
 };
 
@@ -55,33 +67,21 @@ enum class Status {
   Solved,        // converged to the requested tolerance (or, in FixedBarrier mode, the barrier problem)
   MaxIter,       // iteration cap reached. In FixedBarrier mode the iterate satisfies the inequalities
                  // strictly once Newton has started (primal_residual then only measures the dynamics)
-  Infeasible,    // the inequalities and dynamics admit no solution
-  InvalidInput,  // sizes inconsistent, or NaN/Inf in the data or x0
+  Infeasible,    // the hard inequalities and the dynamics admit no solution (a Farkas certificate)
+  InvalidInput,  // sizes inconsistent, NaN/Inf in the data or x0, negative soft penalties, bad settings
   NumericalError, // factorization failed (e.g. a non-convex Q/R)
   TimeLimit      // Settings::time_limit_us ran out; the returned iterate is the last one reached
 };
 const char* to_string(Status s);
 
-enum class Mode {
-  FixedBarrier,  // the seed's Wang-Boyd Fast MPC: one barrier weight, infeasible-start Newton, small cap
-  Converged      // primal-dual interior point to the requested relative accuracy
-};
-
-struct Settings {
-  Mode mode = Mode::Converged;
-  int max_iter = 100;          // iteration cap (FixedBarrier: fixed_barrier_settings() uses 15)
-  double tol = 1e-8;          // relative tolerance on residuals and duality gap (Converged mode)
-  double barrier = 1e-4;      // barrier weight kappa (FixedBarrier mode)
-  bool warm_start = true;     // start from the shifted previous solution when it is usable
-  double time_limit_us = 0;   // wall-time budget of one solve(), checked between iterations (0 = none)
-};
-
 struct Info {
   Status status = Status::InvalidInput;
-  int iterations = 0;
-  double primal_residual = 0.0;  // inf-norm of dynamics and inequality residuals
+  int iterations = 0;            // Newton systems factored (interior-point iterations)
+  int back_solves = 0;           // solves with those factors (predictor, correctors, refinement)
+  double primal_residual = 0.0;  // inf-norm of dynamics residuals and hard-row violations
   double dual_residual = 0.0;    // inf-norm of the stationarity residual
-  double objective = 0.0;        // objective value at the returned iterate (constant terms excluded)
+  double objective = 0.0;        // objective at the returned iterate (constant terms excluded),
+                                 // soft penalties included
   double solve_time_us = 0.0;    // wall time of solve(), microseconds
 };
 

@@ -20,6 +20,13 @@ Vector6d state(double x, double y, double z, double vx, double vy, double vz) {
   s << x, y, z, vx, vy, vz;
   return s;
 }
+// The linear penalty of row `row` on stage i when it is a soft row, -1 when it is hard.
+double soft_penalty(const rvd::solver::OcpQp& qp, int i, int row) {
+  if (qp.dims.ns.empty()) return -1.0;
+  for (int k = 0; k < qp.dims.ns[i]; ++k)
+    if (qp.idxs[i][k] == row) return qp.zs[i](k);
+  return -1.0;
+}
 }  // namespace
 
 TEST_CASE("every phase QP is consistent, with the CW dynamics and the Table 3.1 horizons") {
@@ -61,10 +68,13 @@ TEST_CASE("rendezvous: keep-out rows are -n_i' rho <= -r1 with unit normals turn
     CHECK(std::acos(std::min(1.0, n_i.dot(n_prev))) <= cap + 1e-12);
   }
   CHECK(b.keepout_row(0) == -1);  // x_0 is measured, never constrained
-  // Terminal cone penalty: s >= H rho_N, s >= 0, cost lambda per slack.
-  const int s = b.slack_offset(b.N());
-  REQUIRE(s >= 0);
-  CHECK(b.qp().r[b.N()].segment<4>(s).isConstant(p.rendezvous.lambda));
+  CHECK(soft_penalty(b.qp(), 1, b.keepout_row(1)) < 0.0);  // the keep-out plane is hard
+  // Terminal cone penalty: H rho_N <= 0 as soft rows, lambda per metre outside a face.
+  const int c = b.cone_row(b.N());
+  REQUIRE(c >= 0);
+  for (int k = 0; k < 4; ++k) CHECK(soft_penalty(b.qp(), b.N(), c + k) == p.rendezvous.lambda);
+  for (int i = 0; i < b.N(); ++i) CHECK(b.dims().nu[i] == 3);
+  CHECK(b.dims().nu[b.N()] == 0);
 }
 
 TEST_CASE("rendezvous set point sits on the docking axis at r1 and rotates with the target") {
@@ -93,7 +103,8 @@ TEST_CASE("approach: overshoot plane along the axis at r2 and a pyramid penalty 
     CHECK(b.qp().d[i](row) == doctest::Approx(-p.approach_stop_m));
     const Eigen::Matrix<double, 4, 3> H = b.qp().C[i].block<4, 3>(b.cone_row(i), 0);
     CHECK((H * axis).maxCoeff() < 0.0);  // the axis is inside
-    CHECK(b.qp().r[i].segment<4>(b.slack_offset(i)).isConstant(p.approach.lambda));
+    for (int k = 0; k < 4; ++k) CHECK(soft_penalty(b.qp(), i, b.cone_row(i) + k) == p.approach.lambda);
+    CHECK(soft_penalty(b.qp(), i, row) < 0.0);  // the overshoot plane is hard
   }
 }
 
@@ -120,21 +131,24 @@ TEST_CASE("docking: hard pyramid with its apex at the port, and |v|_inf rows") {
   }
 }
 
-TEST_CASE("recovery QP: one elastic input per stage relaxes exactly the hard state rows") {
+TEST_CASE("recovery QP: exactly the hard state rows become soft, the inputs stay the 3 delta-v") {
   GuidanceParams p;
   PhaseQp b(Phase::Docking, p, true);
   b.build(state(1, -25, 0, 0, 0.05, 0), vbar_target());
+  PhaseQp nominal(Phase::Docking, p);
+  CHECK(b.dims().nu == nominal.dims().nu);
+  CHECK(b.dims().nc == nominal.dims().nc);
   for (int i = 1; i <= b.N(); ++i) {
-    const int e = b.elastic_offset(i);
-    REQUIRE(e >= 0);
-    CHECK(b.qp().r[i](e) == p.recovery_weight);
-    for (int k = 0; k < 4; ++k) CHECK(b.qp().D[i](b.cone_row(i) + k, e) == -1.0);
-    for (int k = 0; k < 6; ++k) CHECK(b.qp().D[i](b.velocity_row(i) + k, e) == -1.0);
-    if (i < b.N()) CHECK(b.qp().D[i].col(e).head<6>().isZero(0.0));  // the thrust box stays hard
+    for (int k = 0; k < 4; ++k) CHECK(soft_penalty(b.qp(), i, b.cone_row(i) + k) == p.recovery_weight);
+    for (int k = 0; k < 6; ++k) CHECK(soft_penalty(b.qp(), i, b.velocity_row(i) + k) == p.recovery_weight);
+    for (int k = 0; k < b.dims().ns[i]; ++k) CHECK(b.qp().Zs[i](k) == 2.0 * p.recovery_quadratic);
+    if (i < b.N())
+      for (int k = 0; k < 6; ++k) CHECK(soft_penalty(b.qp(), i, k) < 0.0);  // the thrust box stays hard
   }
+  CHECK(b.dims().ns[0] == 0);
 }
 
-TEST_CASE("1-norm rendezvous: an LP (no quadratic terms) with |Q e| and |R u| epigraph rows") {
+TEST_CASE("1-norm rendezvous: an LP (no quadratic terms) with |Q e| and |R u| as soft rows") {
   GuidanceParams p;
   p.rendezvous_objective = RendezvousObjective::OneNorm;
   PhaseQp b(Phase::Rendezvous, p);
@@ -144,7 +158,9 @@ TEST_CASE("1-norm rendezvous: an LP (no quadratic terms) with |Q e| and |R u| ep
     CHECK(b.qp().Q[i].isZero(0.0));
     CHECK(b.qp().R[i].isZero(0.0));
   }
-  CHECK(b.dims().nu[0] == 3 + 6 + 3);
+  CHECK(b.dims().nu[0] == 3);  // |Q e| and |R u| are soft rows at penalty 1, not epigraph inputs
+  CHECK(b.dims().ns[0] == 12 + 6);
+  CHECK(b.dims().ns[b.N()] == 12 + 4);
 }
 
 TEST_CASE("terminal weight: the DARE solution satisfies the Riccati equation") {

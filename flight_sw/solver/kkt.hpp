@@ -1,0 +1,84 @@
+// The KKT machinery shared by the interior-point methods (internal to the solver): the stage
+// kernels (residuals, Riccati factorisation and back-solve, rollout, objective), compiled with
+// fixed sizes for the project's shape (nx = 6, nu = 3) and with dynamic sizes for any other, and
+// the sparse row products.
+//
+// Newton system. With row weights W (rows, soft slacks eliminated: see riccati.cpp) the step of
+// the stage variables solves the equality-constrained QP
+//   min sum 1/2 dz_i'(H_i + G_i'W_i G_i)dz_i + g_i'dz_i  s.t.  dx_{i+1} = A_i dx_i + B_i du_i + c_i, dx_0 = 0
+// by a Riccati recursion over the stages: O(N (nx + nu)^3), no fill-in.
+#pragma once
+
+#include <cmath>
+#include <limits>
+
+#include "flight_sw/solver/ocp_qp.hpp"
+#include "flight_sw/solver/settings.hpp"
+#include "flight_sw/solver/workspace.hpp"
+
+namespace rvd::solver::detail {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// Stage kernels, chosen once per solver from the dimensions.
+struct Kernels {
+  // rdx, rdu, rdyn and gz at (x, u, pi, lam); grad_scale and cons_scale from the cost gradient and rows.
+  void (*residuals)(Workspace&, const OcpQp&, const double* x, const double* u, const double* pi,
+                    const double* lam);
+  // Factor the Newton system with row weights w.weff; false when the input block is not positive definite.
+  bool (*factorize)(Workspace&, const OcpQp&, double reg);
+  // Step (s.dx, s.du, s.dpi) for the gradient (w.gx, w.gu) and dynamics residual c.
+  void (*back_solve)(Workspace&, const OcpQp&, const double* c, Step& s);
+  // States from x0 under the inputs: x_{i+1} = A x_i + B u_i + b_i.
+  void (*rollout)(Workspace&, const OcpQp&, double* x, const double* u);
+  // Quadratic and linear cost of (x, u) (soft penalties not included).
+  double (*cost)(Workspace&, const OcpQp&, const double* x, const double* u);
+  // Residual of the unreduced linearised KKT system at step s (stationarity into gx/gu, dynamics
+  // into edyn); returns it relative to the problem scales. Uses w.rdx, w.rdu, w.rdyn.
+  double (*step_error)(Workspace&, const OcpQp&, const Step& s);
+};
+const Kernels& kernels_for(const Workspace& w);
+
+// Per solve: compressed rows of [D_i C_i], constant rows, soft rows and penalties, structure flags.
+// Returns false when a constant row is violated (no plan can satisfy it: infeasible); a violated
+// constant soft row is only a constant cost.
+bool prepare_rows(Workspace& w, const OcpQp& qp, double tol);
+
+// out[k] = G_k [u; x] over the rows of stage i (0 on constant rows).
+inline void g_mul(const Workspace& w, int i, const double* u, const double* x, double* out) {
+  for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
+    double acc = 0.0;
+    for (int a = w.ptr[k]; a < w.mid[k]; ++a) acc += w.val[a] * u[w.col[a]];
+    for (int a = w.mid[k]; a < w.ptr[k + 1]; ++a) acc += w.val[a] * x[w.col[a]];
+    out[k] = acc;
+  }
+}
+// out_u += D_i' v, and out_x += C_i' v unless out_x is null, over the rows of stage i.
+inline void gt_mul_add(const Workspace& w, int i, const double* v, double* out_u, double* out_x) {
+  for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
+    const double vk = v[k];
+    if (vk == 0.0) continue;
+    for (int a = w.ptr[k]; a < w.mid[k]; ++a) out_u[w.col[a]] += w.val[a] * vk;
+    if (out_x)
+      for (int a = w.mid[k]; a < w.ptr[k + 1]; ++a) out_x[w.col[a]] += w.val[a] * vk;
+  }
+}
+// G z over all stages (stage 0: x0 is data, so it enters gz too).
+inline void g_mul_all(const Workspace& w, const double* u, const double* x, double* out) {
+  for (int i = 0; i <= w.N; ++i) g_mul(w, i, u + w.uo[i], x + i * w.nx, out);
+}
+
+inline double max_abs(const double* v, int n) {
+  double m = 0.0;
+  for (int k = 0; k < n; ++k) m = std::max(m, std::abs(v[k]));
+  return m;
+}
+// Soft penalty of the slacks sig (zs sig + Zs sig^2 / 2 over soft rows).
+inline double soft_cost(const Workspace& w, const double* sig) {
+  double f = 0.0;
+  for (int k = 0; k < w.rows; ++k)
+    if (w.soft[k] > 0.0) f += sig[k] * (w.zs[k] + 0.5 * w.Zs[k] * sig[k]);
+  return f;
+}
+
+}  // namespace rvd::solver::detail

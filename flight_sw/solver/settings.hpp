@@ -1,0 +1,84 @@
+// Settings of the Fast MPC solver, and its named presets. Every tuned constant of the method is a
+// field here, with what it does and why it has its value; the presets are the combinations the
+// project uses. (HPIPM names its presets SPEED / BALANCE / ROBUST; ours are named by their use.)
+#pragma once
+
+namespace rvd::solver {
+
+enum class Mode {
+  FixedBarrier,  // the seed's Wang-Boyd Fast MPC: one barrier weight, infeasible-start Newton, small cap
+  Converged      // primal-dual interior point to the requested relative accuracy
+};
+
+struct Settings {
+  Mode mode = Mode::Converged;
+  int max_iter = 40;          // cap on factorisations per solve(): the deadline monitor's bound
+  double tol = 1e-8;          // relative tolerance on residuals and duality gap (Converged mode)
+  double barrier = 1e-4;      // barrier weight kappa (FixedBarrier mode)
+  bool warm_start = true;     // start from the shifted previous solution when it is usable
+  double time_limit_us = 0;   // wall-time budget of one solve(), checked between iterations (0 = none)
+
+  // --- Newton systems
+  // Smallest and largest regularisation of the input block tried when a factorisation fails (x100
+  // per try). The residuals are always the true problem's, so it only makes a step inexact.
+  double reg_min = 1e-10, reg_max = 1e-2;
+  // Iterative refinement of a step (same factors, residual of the unreduced KKT system) while its
+  // residual exceeds refine_below * tol, at most max_refinements times, and only once the relative
+  // duality gap is below refine_from_gap: rounding in the reduced system grows with the largest
+  // barrier weight, which only late iterations have.
+  double refine_below = 0.1;
+  int max_refinements = 2;
+  double refine_from_gap = 1e-5;
+
+  // --- Primal-dual interior point (Converged mode, and FixedBarrier's cold start)
+  double step_to_boundary = 0.995;  // fraction of the way to the boundary of the positive orthant
+  // Gondzio centrality correctors while the step is shorter than correct_below (each costs one back-solve).
+  int max_correctors = 1;
+  double correct_below = 0.5;
+  // Warm start: row slacks and duals pushed at least this far inside (relative to the row's size).
+  double warm_push = 1e-2;
+  // Warm start: complementarity products lifted to at least warm_centre x their mean (0: off;
+  // tuned on closed loops: 0.01 saves 6 % of the iterations, 0.1 more on average but raises maxima).
+  double warm_centre = 0.01;
+  // Infeasibility: the dual iterate, scaled, is a Farkas certificate when its residual times
+  // certificate_reach * |z| stays below its margin (so no plan within that reach of the iterate
+  // exists); tested once the primal residual stalls (no halving over stall_window iterations).
+  double certificate_reach = 10.0;
+  int stall_window = 3;
+  double feasible_enough = 1e-6;  // relative primal residual below which no certificate is sought
+  // Mehrotra: drop the second-order term when it shortens the step below this fraction of the
+  // predictor's (one more back-solve; 0 = never).
+  double second_order_keep = 0.5;
+
+  // --- Fixed barrier (the seed's Fast MPC)
+  // Backtracking line search of the infeasible-start Newton method (Boyd & Vandenberghe 10.3.2):
+  // sufficient decrease ls_alpha, halving factor ls_beta, at most ls_max_halvings; no row slack
+  // loses more than newton_to_boundary of its value in one step.
+  double ls_alpha = 0.01, ls_beta = 0.5;
+  int ls_max_halvings = 60;
+  double newton_to_boundary = 0.99;
+  // The primal-dual start hands over to Newton once the rows hold strictly and the complementarity
+  // is within barrier_handover * kappa; it takes over again when one of Newton's first
+  // damped_newton_steps steps is damped below damped_step (a start that hugs the boundary).
+  double barrier_handover = 10.0;
+  double damped_step = 1.0 / 16.0;
+  int damped_newton_steps = 2;
+  double warm_push_barrier = 1e-3;
+
+  // Presets.
+  // The flight default: Converged mode, tol 1e-8, cap 40, warm start.
+  static Settings converged(int max_iter = 40);
+  // Reference-grade answers for tests and benchmarks: tol 1e-10, no warm start, cap 100.
+  static Settings reference();
+  // The seed's Fast MPC: fixed barrier weight kappa, small iteration cap, warm start.
+  static Settings fixed_barrier(double kappa = 1e-4, int max_iter = 15);
+  // nullptr when usable, else what is wrong.
+  const char* invalid() const;
+};
+
+// The seed's Fast MPC mode (kept for its callers): Settings::fixed_barrier.
+inline Settings fixed_barrier_settings(double kappa = 1e-4, int max_iter = 15) {
+  return Settings::fixed_barrier(kappa, max_iter);
+}
+
+}  // namespace rvd::solver

@@ -1,0 +1,98 @@
+// The solver's workspace: one contiguous arena, sized once from the dimensions (as HPIPM's
+// memsize/create), holding the iterate, residuals, Newton steps and Riccati factors. Nothing in
+// it is allocated after the constructor. Internal to the solver.
+//
+// Layout: vectors over the stages are stored back to back (x of stage i at x + i*nx, u at
+// u + uo[i], rows of stage i at ro[i]..ro[i+1]), so whole-iterate updates are single loops.
+// Row arrays cover every row of every stage; constant rows (no decision variable in them, e.g.
+// stage-0 rows of x0 alone) carry act = 0 and never enter a step.
+#pragma once
+
+#include <cstddef>
+#include <memory>
+#include <vector>
+
+#include "flight_sw/solver/ocp_qp.hpp"
+
+namespace rvd::solver::detail {
+
+// Bump allocator over one block: plan() counts, then carve() hands out aligned pieces.
+class Arena {
+ public:
+  template <class T>
+  T* take(size_t n) {
+    const size_t align = 64;
+    used_ = (used_ + align - 1) / align * align;
+    T* p = base_ ? reinterpret_cast<T*>(base_ + used_) : nullptr;
+    used_ += n * sizeof(T);
+    if (p)
+      for (size_t k = 0; k < n; ++k) new (p + k) T();
+    return p;
+  }
+  size_t used() const { return used_; }
+  void start(unsigned char* base) { base_ = base, used_ = 0; }
+
+ private:
+  unsigned char* base_ = nullptr;
+  size_t used_ = 0;
+};
+
+// One Newton step of every variable.
+struct Step {
+  double *dx, *du, *dpi;           // states (stage 0 stays 0), inputs, dynamics multipliers
+  double *dt, *dlam, *dsig, *dmu;  // row slacks, row duals, soft slacks, their duals
+};
+
+struct Workspace {
+  int N = 0, nx = 0, nu_max = 0, rows = 0, inputs = 0;
+  bool fixed_kernels = false;  // nx = 6, nu = 3 on stages 0..N-1, nu_N in {0, 3}
+  // Stage layout (ints): inputs, input offset, rows, row offset.
+  int *nu, *uo, *nc, *ro, *lo;  // lo: offset of stage i's nu x nu factor in L
+  // Per solve: structure flags per stage (B_i = A_i [0; I], Q_i and R_i diagonal).
+  int *b_tail, *q_diag, *r_diag;
+  // Rows: act (1 active, 0 constant), soft (1 soft row); compressed rows of [D_i C_i]: row k's
+  // nonzeros are [ptr[k], mid[k]) on inputs and [mid[k], ptr[k+1]) on states (col: index in u_i/x_i).
+  double *act, *soft;
+  int *ptr, *mid, *col;
+  double *val;
+  int *ub_row, *lb_row;  // per input: the tightest hard bound row u_j <= . / u_j >= . (-1: none)
+  int rows_active = 0, soft_active = 0;
+  double const_soft = 0.0;
+  double d_max = 0.0, zs_max = 0.0;  // per solve: max |d| over active rows, max soft penalty (problem scales)  // penalty of constant soft rows (x0 alone): part of the objective
+
+  // Iterate.
+  double *x, *u, *pi, *t, *lam, *sig, *mu;
+  // Row data of the current QP: d, soft penalties (0 on hard rows).
+  double *dv, *zs, *Zs;
+  // Residuals: stationarity (x, u), dynamics, rows (Gz - s + t - d), soft slack stationarity; Gz.
+  double *rdx, *rdu, *rdyn, *rin, *rsig, *gz;
+  // Newton system weights: w = lam/t, the soft-eliminated weight, h = Zs + w + mu/sig; the
+  // complementarity targets (rows, soft slacks) and the step QP's row term.
+  double *w, *weff, *hs, *rc, *rcs, *vrow;
+  double *inv_t, *inv_s, *inv_h, *asoft;  // per iteration: 1/t, 1/s, 1/h; the soft rows' eliminated right-hand side
+  // Step QP gradient.
+  double *gx, *gu;
+  // Riccati factors: cost-to-go P (nx x nx per stage), Cholesky L of the input block, Y = L^-1 S,
+  // and the vector recursion l = L^-1 (...), p.
+  double *P, *L, *Y, *l, *p;
+  Step step, spare, corr;  // the current step, a spare (corrector trials), an iterative-refinement correction
+  double *dt_aff, *dlam_aff, *dsig_aff, *dmu_aff;  // the predictor's row/soft steps
+  double *edyn;                                       // refinement: dynamics residual of the step
+  double *s_xx, *s_xx2, *s_ux, *tn, *tm;              // kernel scratch (nx x nx, nu_max x nx, vectors)
+  double *xt, *ut, *pit, *sigt;                       // a trial point (line search)
+  double grad_scale = 1.0, cons_scale = 1.0;
+
+  Workspace() = default;
+  explicit Workspace(const OcpQpDims& dims);
+  Workspace(const Workspace&) = delete;
+  Workspace& operator=(const Workspace&) = delete;
+  size_t bytes() const { return bytes_; }
+
+ private:
+  void carve(Arena& a);
+  std::unique_ptr<unsigned char[]> block_;
+  size_t bytes_ = 0;
+  OcpQpDims dims_;
+};
+
+}  // namespace rvd::solver::detail
