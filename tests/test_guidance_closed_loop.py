@@ -32,9 +32,10 @@ def test_case_definitions():
     c1, c2, c3 = (fsw.dissertation_case(k) for k in (1, 2, 3))
     for c in (c1, c2, c3):
         np.testing.assert_array_equal(c["x0"], [140, -1580, 60, -0.90, -0.32, 0])
-    np.testing.assert_allclose(rotate(c1["q_lvlh_body"], [1, 0, 0]), [0, -1, 0], atol=1e-15)  # V-bar
+    np.testing.assert_allclose(rotate(c1["q_lvlh_body"], [1, 0, 0]), [0, 1, 0], atol=1e-15)   # V-bar, port on +y
     np.testing.assert_allclose(rotate(c2["q_lvlh_body"], [1, 0, 0]), [1, 0, 0], atol=1e-15)   # R-bar
-    np.testing.assert_allclose(c3["omega_body_rad_s"], [0, 0, 0.25 * DEG])
+    np.testing.assert_allclose(rotate(c3["q_lvlh_body"], [1, 0, 0]), [0, 1, 0], atol=1e-15)
+    np.testing.assert_allclose(c3["omega_body_rad_s"], [0, 0, 0.15 * DEG])
 
 
 @pytest.mark.parametrize("k", [1, 2, 3])

@@ -113,6 +113,7 @@ std::map<std::string, std::function<double&(AppConfig&)>> scalar_params() {
   m["nav.gate_chi2"] = [](AppConfig& c) -> double& { return c.nav_filter.gate_chi2; };
   m["nav.thrust_error_tau_s"] = [](AppConfig& c) -> double& { return c.nav_filter.thrust_error_tau_s; };
   m["margins.input_fraction"] = [](AppConfig& c) -> double& { return c.guidance.margins.input_fraction; };
+  m["recovery_speed_factor"] = [](AppConfig& c) -> double& { return c.guidance.recovery_speed_factor; };
   m["margins.plan_reserve_fraction"] = [](AppConfig& c) -> double& { return c.guidance.margins.plan_reserve_fraction; };
   m["margins.keepout_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.keepout_m; };
   m["margins.estimate_sigmas"] = [](AppConfig& c) -> double& { return c.guidance.margins.estimate_sigmas; };

@@ -227,14 +227,14 @@ ScenarioCase dissertation_case(int number, double spin_deg_s) {
   c.x0 << 140.0, -1580.0, 60.0, -0.90, -0.32, 0.0;
   c.omega_body_rad_s.setZero();
   switch (number) {
-    case 1:  // V-bar: docking axis (body +x) along LVLH -y
-      c.q_lvlh_body = Eigen::AngleAxisd(-90.0 * kDeg, Eigen::Vector3d::UnitZ());
+    case 1:  // V-bar: docking axis (body +x) along LVLH +y (sec. 3.6.1)
+      c.q_lvlh_body = Eigen::AngleAxisd(90.0 * kDeg, Eigen::Vector3d::UnitZ());
       break;
     case 2:  // R-bar: docking axis along LVLH +x
       c.q_lvlh_body = Eigen::Quaterniond::Identity();
       break;
     case 3:  // starts like case 1 and spins about body z (= LVLH z)
-      c.q_lvlh_body = Eigen::AngleAxisd(-90.0 * kDeg, Eigen::Vector3d::UnitZ());
+      c.q_lvlh_body = Eigen::AngleAxisd(90.0 * kDeg, Eigen::Vector3d::UnitZ());
       c.omega_body_rad_s = Eigen::Vector3d(0.0, 0.0, spin_deg_s * kDeg);
       break;
     default: throw std::invalid_argument("dissertation_case: number must be 1, 2 or 3");

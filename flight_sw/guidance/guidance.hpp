@@ -118,6 +118,6 @@ struct ScenarioCase {
   Eigen::Quaterniond q_lvlh_body;
   Eigen::Vector3d omega_body_rad_s;
 };
-ScenarioCase dissertation_case(int number, double spin_deg_s = 0.25);
+ScenarioCase dissertation_case(int number, double spin_deg_s = 0.15);
 
 }  // namespace rvd::guidance

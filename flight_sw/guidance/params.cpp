@@ -109,8 +109,8 @@ std::string GuidanceParams::validate() const {
     err << "thrusters need mass_kg > 0, thrust_N > 0, min_impulse_bit_s >= 0; ";
   if (!positive(max_range_m) || !positive(max_speed_mps) || !positive(max_spin_rad_s))
     err << "max_range_m, max_speed_mps, max_spin_rad_s must be > 0; ";
-  if (!positive(recovery_weight) || !nonnegative(recovery_quadratic))
-    err << "recovery_weight must be > 0 and recovery_quadratic >= 0; ";
+  if (!positive(recovery_weight) || !nonnegative(recovery_quadratic) || !positive(recovery_speed_factor))
+    err << "recovery_weight and recovery_speed_factor must be > 0, recovery_quadratic >= 0; ";
   if (!nonnegative(max_iter_accept_residual)) err << "max_iter_accept_residual must be >= 0; ";
   if (!(margins.input_fraction >= 0.0 && margins.input_fraction < 1.0)) err << "margins.input_fraction must be in [0, 1); ";
   if (!(margins.plan_reserve_fraction >= 0.0 && margins.plan_reserve_fraction < 1.0))

@@ -131,6 +131,7 @@ struct GuidanceParams {
   bool recovery = true;
   double recovery_weight = 1e4;
   double recovery_quadratic = 10.0;
+  double recovery_speed_factor = 10.0;  // the docking |v|_inf rows' penalty is this many times the cone's
   // A solve that stopped at the iteration cap is used when its primal residual is this small.
   double max_iter_accept_residual = 1e-6;
 

@@ -179,7 +179,9 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
       if (L.speed_row >= 0) soft(L.speed_row, 1, lin, quad);
       if (phase_ == Phase::Docking) {  // the docking cone is hard; the approach cone is already soft
         soft(L.cone_row, 4, lin, quad);
-        soft(L.vel_row, 6, lin, quad);
+        // |v|_inf outweighs the cone: when a spinning target's cone cannot be held at v_max (r omega >
+        // v_max), falling behind the cone far from the port is the lesser harm than chasing it faster.
+        soft(L.vel_row, 6, params_.recovery_speed_factor * lin, params_.recovery_speed_factor * quad);
       }
     }
   }

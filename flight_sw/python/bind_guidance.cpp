@@ -429,7 +429,7 @@ void bind_guidance(py::module_& m) {
         d["omega_body_rad_s"] = c.omega_body_rad_s;
         return d;
       },
-      py::arg("number"), py::arg("spin_deg_s") = 0.25,
+      py::arg("number"), py::arg("spin_deg_s") = 0.15,
       "Cases 1 (V-bar), 2 (R-bar), 3 (rotating) of the dissertation: x0, q_lvlh_body [w,x,y,z], omega_body_rad_s");
 
   m.def("mean_motion_rad_s", [](double alt) { return mean_motion_rad_s(alt); }, py::arg("altitude_m"));
