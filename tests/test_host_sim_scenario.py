@@ -60,7 +60,7 @@ def test_rotating_target_port_turns_at_the_spin_rate_with_consistent_velocity():
     # range to the port vs to the CoM
     rho = sim.truth_lvlh()[0:3]
     assert sim.range_to_com_m() == pytest.approx(np.linalg.norm(rho), rel=1e-15)
-    assert sim.range_to_port_m() == pytest.approx(np.linalg.norm(rho - [0.5, 0, 0]), rel=1e-15)
+    assert sim.range_to_port_m() == pytest.approx(np.linalg.norm(rho - [-0.5, 0, 0]), rel=1e-15)
 
 
 def test_load_from_path_and_clear_errors(tmp_path):

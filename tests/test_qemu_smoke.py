@@ -181,4 +181,7 @@ def test_case1_closed_loop_under_qemu_user_equals_native(q7s_build, flight_exe, 
     assert abs(emulated.dv_total_mps - native.dv_total_mps) <= 1e-6
     assert emulated.hello.arch == "armv7l" and emulated.hello.cpu_model == "cortex-a9"
     _, steps = load_run(run_dir)
-    assert (steps["solver_status"].iloc[:-1] == 0).all()  # every solve converged under emulation too
+    # Every solve converged under emulation too, or was certified infeasible and recovered (the Case 1
+    # rendezvous meets the re-centred keep-out planes at 600-850 m), as natively.
+    assert set(steps["guidance_status"].iloc[:-1]) <= {0, 5}
+    assert set(steps["solver_status"].iloc[:-1]) <= {0, 2}

@@ -140,8 +140,14 @@ TEST_CASE("recovery QP: exactly the hard state rows become soft, the inputs stay
   CHECK(b.dims().nc == nominal.dims().nc);
   for (int i = 1; i <= b.N(); ++i) {
     for (int k = 0; k < 4; ++k) CHECK(soft_penalty(b.qp(), i, b.cone_row(i) + k) == p.recovery_weight);
-    for (int k = 0; k < 6; ++k) CHECK(soft_penalty(b.qp(), i, b.velocity_row(i) + k) == p.recovery_weight);
-    for (int k = 0; k < b.dims().ns[i]; ++k) CHECK(b.qp().Zs[i](k) == 2.0 * p.recovery_quadratic);
+    // |v|_inf weighs recovery_speed_factor times the cone (falling behind a spinning target's cone far
+    // from the port is the lesser harm than chasing it faster than v_max).
+    for (int k = 0; k < 6; ++k)
+      CHECK(soft_penalty(b.qp(), i, b.velocity_row(i) + k) == p.recovery_speed_factor * p.recovery_weight);
+    for (int k = 0; k < b.dims().ns[i]; ++k) {
+      const bool speed = b.qp().idxs[i][k] >= b.velocity_row(i) && b.qp().idxs[i][k] < b.velocity_row(i) + 6;
+      CHECK(b.qp().Zs[i](k) == (speed ? p.recovery_speed_factor : 1.0) * 2.0 * p.recovery_quadratic);
+    }
     if (i < b.N())
       for (int k = 0; k < 6; ++k) CHECK(soft_penalty(b.qp(), i, k) < 0.0);  // the thrust box stays hard
   }
