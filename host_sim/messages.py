@@ -53,7 +53,8 @@ def key(kind: str, run: str) -> str:
 class MessageError(ValueError):
     """A byte string that is not a valid rvd message, or a message that cannot be encoded.
 
-    `kind` says why, for counting: malformed, oversized, untagged, wrong_run, bad_tag, replayed.
+    `kind` says why, for counting: malformed, oversized, untagged, wrong_run, bad_tag, replayed, or
+    invalid (an authentic message whose content breaks the rules, e.g. NaN: the sender's own fault).
     """
 
     def __init__(self, text: str, kind: str = "malformed"):
@@ -140,7 +141,7 @@ class Telemetry:
     total_instructions: tuple[int, ...] = field(default_factory=lambda: (0,) * 3)  # sum of solve instructions per phase (0 when unknown)
     peak_heap_bytes: int = 0  # peak heap in use by the flight software (malloc statistics)
     max_rss_kb: int = 0  # peak resident set of the process (under qemu-user: of QEMU itself)
-    nav_rejected: int = 0  # nav payloads rejected as malformed so far
+    nav_rejected: int = 0  # messages from the host rejected as malformed (layout, type, NaN/Inf) so far
     nav_duplicates: int = 0  # nav messages answered again from the cached cmd (resends)
     nav_stale: int = 0  # navs older than the last one answered, dropped
     nav_future: int = 0  # navs too far ahead of the expected step (or not starting a run), dropped
@@ -318,5 +319,8 @@ class LinkAuth:
             if seq <= self.last_received:
                 raise MessageError(f"sequence number {seq} not above {self.last_received}", "replayed")
             self.last_received = seq
-        return decode(data, expect)
+        try:
+            return decode(data, expect)
+        except MessageError as exc:  # authentic, but not a valid message: the sender's fault
+            raise MessageError(f"{exc} (authentic message)", "invalid") from None
 

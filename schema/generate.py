@@ -251,7 +251,10 @@ PY_AUTH = r'''class LinkAuth:
             if seq <= self.last_received:
                 raise MessageError(f"sequence number {seq} not above {self.last_received}", "replayed")
             self.last_received = seq
-        return decode(data, expect)
+        try:
+            return decode(data, expect)
+        except MessageError as exc:  # authentic, but not a valid message: the sender's fault
+            raise MessageError(f"{exc} (authentic message)", "invalid") from None
 '''
 
 
@@ -551,7 +554,8 @@ def gen_py(schema: dict) -> str:
     w("class MessageError(ValueError):")
     w('    """A byte string that is not a valid rvd message, or a message that cannot be encoded.')
     w("")
-    w("    `kind` says why, for counting: malformed, oversized, untagged, wrong_run, bad_tag, replayed.")
+    w("    `kind` says why, for counting: malformed, oversized, untagged, wrong_run, bad_tag, replayed, or")
+    w("    invalid (an authentic message whose content breaks the rules, e.g. NaN: the sender's own fault).")
     w('    """')
     w("")
     w('    def __init__(self, text: str, kind: str = "malformed"):')

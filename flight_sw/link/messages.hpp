@@ -418,7 +418,7 @@ struct Telemetry {
   std::array<uint64_t, 3> total_instructions{};  // sum of solve instructions per phase (0 when unknown)
   uint64_t peak_heap_bytes = 0;  // peak heap in use by the flight software (malloc statistics)
   uint64_t max_rss_kb = 0;  // peak resident set of the process (under qemu-user: of QEMU itself)
-  uint32_t nav_rejected = 0;  // nav payloads rejected as malformed so far
+  uint32_t nav_rejected = 0;  // messages from the host rejected as malformed (layout, type, NaN/Inf) so far
   uint32_t nav_duplicates = 0;  // nav messages answered again from the cached cmd (resends)
   uint32_t nav_stale = 0;  // navs older than the last one answered, dropped
   uint32_t nav_future = 0;  // navs too far ahead of the expected step (or not starting a run), dropped
