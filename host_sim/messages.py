@@ -154,7 +154,7 @@ class Telemetry:
     link_losses: int = 0  # Zenoh links lost (EOF, errors, lease expiry, resyncs)
     link_resyncs: int = 0  # links dropped because the byte stream no longer parsed (corrupted framing)
     link_rx_rejected: int = 0  # Zenoh messages rejected as malformed by the link layer
-    reserved2: int = 0  # 0
+    link_rx_unmatched: int = 0  # samples on a key none of our subscriptions includes (e.g. a wildcard put), dropped
 
 
 @dataclass
@@ -176,7 +176,7 @@ _LAYOUT = {
     Hello: (('arch', 'str', 16), ('cpu_model', 'str', 32), ('compiler', 'str', 48), ('build', 'str', 48), ('solver_mode', 'int', 1), ('reserved', 'int', 1), ('solver_max_iter', 'int', 1), ('solver_tol', 'f64', 1), ('horizon', 'int', 3), ('reserved2', 'int', 1), ('period_s', 'f64', 3), ('max_pulse_s', 'f64', 3), ('deadline_fraction', 'f64', 1), ('pid', 'int', 1), ('session', 'int', 1),),
     Nav: (('step', 'int', 1), ('flags', 'int', 1), ('t_s', 'f64', 1), ('position_lvlh_m', 'f64', 3), ('velocity_lvlh_mps', 'f64', 3), ('q_lvlh_body', 'f64', 4), ('omega_body_rad_s', 'f64', 3),),
     Cmd: (('step', 'int', 1), ('phase', 'int', 1), ('guidance_status', 'int', 1), ('solver_status', 'int', 1), ('overrun', 'int', 1), ('period_s', 'f64', 1), ('dv_cmd_lvlh_mps', 'f64', 3), ('dv_alloc_lvlh_mps', 'f64', 3), ('pulse_s', 'f64', 6), ('solve_time_us', 'f64', 1), ('step_time_us', 'f64', 1), ('instructions', 'int', 1), ('iterations', 'int', 1), ('reserved', 'int', 1), ('overruns', 'int', 1), ('primal_residual', 'f64', 1), ('dual_residual', 'f64', 1), ('objective', 'f64', 1),),
-    Telemetry: (('steps', 'int', 3), ('overruns', 'int', 3), ('mean_solve_us', 'f64', 3), ('max_solve_us', 'f64', 3), ('max_step', 'int', 3), ('reserved', 'int', 1), ('total_instructions', 'int', 3), ('peak_heap_bytes', 'int', 1), ('max_rss_kb', 'int', 1), ('nav_rejected', 'int', 1), ('nav_duplicates', 'int', 1), ('nav_stale', 'int', 1), ('nav_future', 'int', 1), ('nav_coalesced', 'int', 1), ('rx_oversized', 'int', 1), ('rx_untagged', 'int', 1), ('rx_wrong_run', 'int', 1), ('rx_bad_tag', 'int', 1), ('rx_replayed', 'int', 1), ('link_losses', 'int', 1), ('link_resyncs', 'int', 1), ('link_rx_rejected', 'int', 1), ('reserved2', 'int', 1),),
+    Telemetry: (('steps', 'int', 3), ('overruns', 'int', 3), ('mean_solve_us', 'f64', 3), ('max_solve_us', 'f64', 3), ('max_step', 'int', 3), ('reserved', 'int', 1), ('total_instructions', 'int', 3), ('peak_heap_bytes', 'int', 1), ('max_rss_kb', 'int', 1), ('nav_rejected', 'int', 1), ('nav_duplicates', 'int', 1), ('nav_stale', 'int', 1), ('nav_future', 'int', 1), ('nav_coalesced', 'int', 1), ('rx_oversized', 'int', 1), ('rx_untagged', 'int', 1), ('rx_wrong_run', 'int', 1), ('rx_bad_tag', 'int', 1), ('rx_replayed', 'int', 1), ('link_losses', 'int', 1), ('link_resyncs', 'int', 1), ('link_rx_rejected', 'int', 1), ('link_rx_unmatched', 'int', 1),),
     Bye: (('reason', 'int', 1), ('reserved', 'int', 3), ('last_step', 'int', 1), ('text', 'str', 64),),
 }
 

@@ -249,7 +249,7 @@ class RunSummary:
 FLIGHT_DISCARD_FIELDS: tuple[str, ...] = (
     "nav_rejected", "nav_duplicates", "nav_stale", "nav_future", "nav_coalesced", "rx_oversized",
     "rx_untagged", "rx_wrong_run", "rx_bad_tag", "rx_replayed", "link_losses", "link_resyncs",
-    "link_rx_rejected",
+    "link_rx_rejected", "link_rx_unmatched",
 )
 
 
@@ -347,7 +347,7 @@ class PilServer:
             if n <= self.MAX_REJECTION_EVENTS:
                 self.event("rejected_message", f"{kind}: {key}: {reason}")
             elif n == self.MAX_REJECTION_EVENTS + 1:
-                self.event("rejected_message", f"{kind}: more than {self.MAX_REJECTION_EVENTS}; only counted from now on")
+                self.event("rejected_message_cap", f"{kind}: more than {self.MAX_REJECTION_EVENTS}; only counted from now on")
 
     def _take(self, message):
         """Route side messages (hello, telemetry, bye); return a Cmd, a Bye or an InvalidMessage, else None."""

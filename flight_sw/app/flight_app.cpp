@@ -171,6 +171,7 @@ msg::Telemetry FlightApp::telemetry() const {
     t.link_losses = u32(z.link_losses);
     t.link_resyncs = u32(z.resyncs);
     t.link_rx_rejected = u32(z.rx_rejected);
+    t.link_rx_unmatched = u32(z.rx_unmatched);
   }
   return t;
 }

@@ -431,7 +431,7 @@ struct Telemetry {
   uint32_t link_losses = 0;  // Zenoh links lost (EOF, errors, lease expiry, resyncs)
   uint32_t link_resyncs = 0;  // links dropped because the byte stream no longer parsed (corrupted framing)
   uint32_t link_rx_rejected = 0;  // Zenoh messages rejected as malformed by the link layer
-  uint32_t reserved2 = 0;  // 0
+  uint32_t link_rx_unmatched = 0;  // samples on a key none of our subscriptions includes (e.g. a wildcard put), dropped
 };
 
 // Writes Telemetry::kSize bytes (nonce, sequence number and tag zero: LinkAuth::seal() fills them);
@@ -467,7 +467,7 @@ inline std::size_t encode(const Telemetry& m, uint8_t* out, std::size_t cap, Err
   wire::put<uint32_t>(p, m.link_losses);
   wire::put<uint32_t>(p, m.link_resyncs);
   wire::put<uint32_t>(p, m.link_rx_rejected);
-  wire::put<uint32_t>(p, m.reserved2);
+  wire::put<uint32_t>(p, m.link_rx_unmatched);
   std::memset(p, 0, kTagSize);
   p += kTagSize;
   return static_cast<std::size_t>(p - out);
@@ -506,7 +506,7 @@ inline Error decode(const uint8_t* data, std::size_t n, Telemetry& m) {
   r.link_losses = wire::get<uint32_t>(p);
   r.link_resyncs = wire::get<uint32_t>(p);
   r.link_rx_rejected = wire::get<uint32_t>(p);
-  r.reserved2 = wire::get<uint32_t>(p);
+  r.link_rx_unmatched = wire::get<uint32_t>(p);
   for (double v : r.mean_solve_us) if (!std::isfinite(v)) return Error::NonFinite;
   for (double v : r.max_solve_us) if (!std::isfinite(v)) return Error::NonFinite;
   m = r;

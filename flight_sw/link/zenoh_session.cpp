@@ -756,8 +756,10 @@ void ZenohSession::handle_push(const NetworkMsg& m) {
   sample.has_encoding = d.has_encoding;
   sample.encoding = d.encoding;
   in_callback_ = true;
+  bool matched = false;
   for (const Subscriber& sub : subscribers_) {
     if (!keyexpr_matches(sub.key, sample.key)) continue;
+    matched = true;
     try {
       sub.callback(sample);
     } catch (...) {  // a throwing callback must not take the link loop down with it
@@ -766,6 +768,7 @@ void ZenohSession::handle_push(const NetworkMsg& m) {
     }
   }
   in_callback_ = false;
+  if (!matched) ++stats_.rx_unmatched;  // e.g. a put on a wildcard key that intersects ours
 }
 
 void ZenohSession::handle_declare(const NetworkMsg& m) {

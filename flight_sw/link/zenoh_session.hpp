@@ -106,6 +106,7 @@ struct ZenohStats {
   uint64_t rx_sender_mapped = 0, rx_receiver_mapped = 0;  // pushes keyed by a declared id
   uint64_t rx_rejected = 0;    // malformed batches, unknown key ids, broken fragment chains, ...
   uint64_t rx_oversized = 0;   // fragmented messages larger than max_reassembled_bytes, dropped
+  uint64_t rx_unmatched = 0;   // samples whose key none of our subscriptions includes, dropped
   uint64_t resyncs = 0;        // links dropped because the byte stream no longer parsed (also link_losses)
   uint64_t rx_sn_dropped = 0;  // frames whose SN is not newer than the last one (duplicates)
   uint64_t requests_answered = 0, interests_answered = 0;

@@ -152,6 +152,7 @@ TEST_CASE("telemetry and bye golden vectors") {
   t.link_losses = 9;
   t.link_resyncs = 10;
   t.link_rx_rejected = 11;
+  t.link_rx_unmatched = 12;
   CHECK(encoded(t, Role::Flight, 9) == golden("telemetry"));
   Bye b;
   b.reason = 1;

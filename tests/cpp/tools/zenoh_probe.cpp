@@ -168,7 +168,7 @@ void print_stats(const ZenohSession& z, long seq_errors) {
       "batches_rx=%llu batches_tx=%llu frames_rx=%llu frames_tx=%llu fragments_rx=%llu "
       "reassembled_rx=%llu samples_rx=%llu puts_tx=%llu keepalives_rx=%llu keepalives_tx=%llu "
       "rx_sender_mapped=%llu rx_receiver_mapped=%llu rx_rejected=%llu rx_sn_dropped=%llu "
-      "rx_oversized=%llu resyncs=%llu requests_answered=%llu seq_errors=%ld last_error=\"%s\"\n",
+      "rx_oversized=%llu rx_unmatched=%llu resyncs=%llu requests_answered=%llu seq_errors=%ld last_error=\"%s\"\n",
       (unsigned long long)s.connects, (unsigned long long)s.reconnects,
       (unsigned long long)s.link_losses, (unsigned long long)s.lease_expirations,
       (unsigned long long)s.batches_rx, (unsigned long long)s.batches_tx,
@@ -178,7 +178,7 @@ void print_stats(const ZenohSession& z, long seq_errors) {
       (unsigned long long)s.keepalives_rx, (unsigned long long)s.keepalives_tx,
       (unsigned long long)s.rx_sender_mapped, (unsigned long long)s.rx_receiver_mapped,
       (unsigned long long)s.rx_rejected, (unsigned long long)s.rx_sn_dropped,
-      (unsigned long long)s.rx_oversized, (unsigned long long)s.resyncs,
+      (unsigned long long)s.rx_oversized, (unsigned long long)s.rx_unmatched, (unsigned long long)s.resyncs,
       (unsigned long long)s.requests_answered, seq_errors, z.last_error().c_str());
   std::fflush(stdout);
 }
