@@ -493,3 +493,37 @@ def test_rvd_run_ideal_three_times_gives_the_same_record(tmp_path):
     csvs = [s[keep].to_csv(index=False) for s in steps]
     assert csvs[0] == csvs[1] == csvs[2]
     assert (steps[0]["delay_s"].iloc[:-1] == 0).all()  # the last (docked) step applies nothing
+
+
+def test_flight_software_stopped_and_continued_the_run_is_unchanged(tmp_path, reference):
+    """SIGSTOP the flight process after step 10; the host's wait for cmd 11 times out and it resends
+    nav 11, at which point (an event, not a delay) the flight process is continued. Both navs 11 are
+    then waiting for it: one is answered, the other overtaken (coalesced) or answered again from the
+    cache (duplicate). The run is the undisturbed one."""
+    params, _ = reference
+    state = {}
+
+    def on_started(server, proc):
+        state["proc"] = proc
+
+        def on_step(k, summary, cmd):
+            if k == 10:
+                proc.send_signal(signal.SIGSTOP)
+                state["stopped"] = True
+        server.on_step = on_step
+
+    def resend_continues(k, attempt):
+        if attempt == 1 and state.get("stopped") and "continued" not in state:
+            state["proc"].send_signal(signal.SIGCONT)
+            state["continued"] = k
+        return False  # nothing is dropped
+
+    summary, run_dir = run_pil("case1_vbar", **IDEAL, sim_options={"cw_mean_motion_rad_s": params.mean_motion_rad_s()},
+                               config=ServerConfig(delay_model="none", cmd_timeout_s=0.3, nav_retries=3,
+                                                   drop_nav=resend_continues),
+                               run_dir=tmp_path / "stopped", on_started=on_started)
+    assert state["continued"] == 11
+    assert_undisturbed(summary, reference)
+    t = summary.telemetry
+    assert summary.nav_resends >= 1
+    assert t.nav_coalesced + t.nav_duplicates == summary.nav_resends
