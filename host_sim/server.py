@@ -530,12 +530,12 @@ class PilServer:
                 s.end = f"flight software ended the run ({cmd.text})"
                 self._log_without_cmd(meas, target, truth)
                 return
-            why = (cmd.reason if isinstance(cmd, InvalidMessage) else
-                   check_cmd(cmd, s.hello, k, last_phase) if isinstance(cmd, msg.Cmd) else None)
-            if why is not None:  # the flight software's own command breaks its declared limits
-                s.invalid_commands += 1
-                s.end = f"flight fault: invalid command for step {k}: {why}"
-                self.event("flight_fault", f"invalid command for step {k}, not applied: {why}", step=k)
+            what, why = ("command" if cmd.kind == "cmd" else cmd.kind, cmd.reason) if isinstance(cmd, InvalidMessage) \
+                else ("command", check_cmd(cmd, s.hello, k, last_phase) if isinstance(cmd, msg.Cmd) else None)
+            if why is not None:  # the flight software's own message breaks its declared limits
+                s.invalid_commands += what == "command"
+                s.end = f"flight fault: invalid {what} for step {k}: {why}"
+                self.event("flight_fault", f"invalid {what} for step {k}, not applied: {why}", step=k)
                 self._log_without_cmd(meas, target, truth)
                 return
             if cmd is None and cfg.lockstep:
