@@ -14,11 +14,16 @@
 namespace rvd::app {
 namespace {
 
-int hex_digit(char c) {
-  if (c >= '0' && c <= '9') return c - '0';
-  if (c >= 'a' && c <= 'f') return c - 'a' + 10;
-  if (c >= 'A' && c <= 'F') return c - 'A' + 10;
-  return -1;
+// One hex digit without a branch on its value: the same instructions for every key, so that the
+// guest's instruction stream (its clock under QEMU -icount) does not depend on the run's key.
+// Returns the value, or sets `bad`.
+uint8_t hex_digit(char ch, uint32_t& bad) {
+  const uint32_t c = static_cast<uint8_t>(ch);
+  const uint32_t digit = c - '0', alpha = (c | 0x20u) - 'a';
+  const uint32_t is_digit = 0u - static_cast<uint32_t>(digit <= 9u);
+  const uint32_t is_alpha = 0u - static_cast<uint32_t>(alpha <= 5u);
+  bad |= ~(is_digit | is_alpha) & 1u;
+  return static_cast<uint8_t>((digit & is_digit) | ((alpha + 10u) & is_alpha));
 }
 
 constexpr size_t kKeyText = 2 * msg::kKeySize;
@@ -30,12 +35,12 @@ bool parse_link_key(const std::string& text, LinkKey& key) {
   std::string t = text;
   if (!t.empty() && t.back() == '\n') t.pop_back();
   if (t.size() != kKeyText) return false;
+  uint32_t bad = 0;
   for (size_t i = 0; i < key.size(); ++i) {
-    const int hi = hex_digit(t[2 * i]), lo = hex_digit(t[2 * i + 1]);
-    if (hi < 0 || lo < 0) return false;
+    const uint8_t hi = hex_digit(t[2 * i], bad), lo = hex_digit(t[2 * i + 1], bad);
     key[i] = static_cast<uint8_t>(hi << 4 | lo);
   }
-  return true;
+  return bad == 0;
 }
 
 bool load_link_key(const std::string& key_file, LinkKey& key, std::string& error) {
