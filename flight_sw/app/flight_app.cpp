@@ -257,8 +257,7 @@ void FlightApp::receive_nav(const uint8_t* data, size_t size) {
   msg::Nav nav;
   const msg::Error e = msg::receive(auth_, data, size, nav);
   if (e != msg::Error::None) {
-    dropped_.count(e);
-    note("nav dropped: %s (%zu bytes)", msg::to_string(e), size);
+    note_drop("nav", e, size);
     return;
   }
   if (have_nav_) ++dropped_.coalesced;  // the previous one was never handled
@@ -270,11 +269,18 @@ void FlightApp::receive_bye(const uint8_t* data, size_t size) {
   msg::Bye b;
   const msg::Error e = msg::receive(auth_, data, size, b);
   if (e != msg::Error::None) {
-    dropped_.count(e);
-    note("bye dropped: %s (%zu bytes)", msg::to_string(e), size);
+    note_drop("bye", e, size);
     return;
   }
   bye_received_ = true;
+}
+
+void FlightApp::note_drop(const char* kind, msg::Error e, size_t size) {
+  dropped_.count(e);
+  // The first drops are logged one by one; a flood is only counted (telemetry has the totals).
+  constexpr uint32_t kLogged = 50;
+  if (++drops_noted_ <= kLogged) note("%s dropped: %s (%zu bytes)", kind, msg::to_string(e), size);
+  if (drops_noted_ == kLogged) note("further drops are only counted");
 }
 
 std::optional<msg::Nav> FlightApp::take_nav() {

@@ -64,10 +64,11 @@ struct AppConfig {
   std::function<void(uint8_t* cmd, size_t size)> corrupt_cmd;
 };
 
-// Everything the flight software dropped, by reason (telemetry).
+// What the flight software did not take as a new step, by reason (telemetry).
 struct InputCounters {
   uint32_t malformed = 0;   // layout, type or NaN/Inf (Telemetry::nav_rejected)
-  uint32_t duplicates = 0, stale = 0, future = 0, coalesced = 0;
+  uint32_t duplicates = 0;  // resends, answered again from the cached cmd
+  uint32_t stale = 0, future = 0, coalesced = 0;
   uint32_t oversized = 0, untagged = 0, wrong_run = 0, bad_tag = 0, replayed = 0;
   void count(msg::Error e);
 };
@@ -134,6 +135,7 @@ class FlightApp {
 
  private:
   template <class M> void publish_msg(const char* kind, const M& m);
+  void note_drop(const char* kind, msg::Error e, size_t size);
   std::string key(const char* kind) const;
   void note(const char* fmt, ...) const;
 
@@ -148,6 +150,7 @@ class FlightApp {
   bool have_nav_ = false;
   bool bye_received_ = false;
   InputCounters dropped_;
+  uint32_t drops_noted_ = 0;
   uint32_t overruns_ = 0;
   uint64_t peak_heap_bytes_ = 0;
 };
