@@ -229,7 +229,7 @@ TEST_CASE("the hello declares the limits the host checks; bad run ids and missin
   CHECK_FALSE(app::parse_link_key(std::string(62, 'a') + "zz", k));
 }
 
-TEST_CASE("checking, decoding and answering a nav allocates nothing") {
+TEST_CASE("checking, decoding and answering a nav, and sealing a cmd, allocate nothing") {
   app::AppConfig cfg = config();
   app::FlightApp a(cfg);
   Host h;
@@ -248,6 +248,15 @@ TEST_CASE("checking, decoding and answering a nav allocates nothing") {
     REQUIRE(step(a, resends[k]));  // a resend of the same step: answered from the cache
     a.receive_nav(navs[k].data(), navs[k].size());  // a replay: dropped
     (void)a.telemetry();
+  }
+  // Sealing what the flight software sends: no allocation either.
+  app::LinkKey k = test_key();
+  msg::LinkAuth flight_side(k.data(), k.size(), kRun, msg::Role::Flight);
+  uint8_t out[msg::Cmd::kSize];
+  for (int i = 0; i < 100; ++i) {
+    msg::Cmd c;
+    c.step = static_cast<uint32_t>(i);
+    REQUIRE(msg::seal(flight_side, c, out, sizeof out) == msg::Cmd::kSize);
   }
   CHECK(g_news - before == 0);
   CHECK(a.dropped().bad_tag == navs.size() - 1);
