@@ -18,7 +18,6 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from .metrics import METRICS_VERSION, PHASES, WALL_TIME_METRICS, run_metrics, solves as run_solves
@@ -67,7 +66,13 @@ def runs_frame(plan, store) -> pd.DataFrame:
         row["build"] = eng.identity.get("build", point.target)
         row.update(cache[key])
         rows.append(row)
-    return pd.DataFrame(rows)
+    df = pd.DataFrame(rows)
+    for c in df.columns:  # swept integers stay integers where another sweep leaves them empty
+        if c.startswith(("guidance.", "model.")) and df[c].dtype.kind == "f":
+            v = df[c].dropna()
+            if len(v) and (v == v.round()).all() and c.endswith(".N"):
+                df[c] = df[c].astype("Int64")
+    return df
 
 
 def point_columns(runs: pd.DataFrame) -> list[str]:
@@ -117,14 +122,7 @@ def solves_frame(plan, store, runs: pd.DataFrame) -> pd.DataFrame:
 
 
 def frames_equal(a: pd.DataFrame, b: pd.DataFrame) -> bool:
-    """Same columns, same rows, same values bit for bit (NaN equal to NaN)."""
+    """Same columns, same rows, same values and types (NaN equal to NaN)."""
     if list(a.columns) != list(b.columns) or len(a) != len(b):
         return False
-    for c in a.columns:
-        x, y = a[c].to_numpy(), b[c].to_numpy()
-        if x.dtype.kind == "f" and y.dtype.kind == "f":
-            if not np.array_equal(x, y, equal_nan=True):
-                return False
-        elif not all((u == v) or (u != u and v != v) for u, v in zip(x, y)):
-            return False
-    return True
+    return all(a[c].reset_index(drop=True).equals(b[c].reset_index(drop=True)) for c in a.columns)

@@ -148,6 +148,7 @@ def sensitivity_figures(runs, tables, figures, out: Path) -> list[tuple[str, str
                 for _, r in g.iterrows():
                     m[ns.index(r["N"]), tss.index(r["Ts_s"])] = r[col]
                 im = ax.imshow(m, cmap="viridis", aspect="auto", origin="lower")
+                lo, hi = np.nanmin(m) if np.isfinite(m).any() else 0.0, np.nanmax(m) if np.isfinite(m).any() else 1.0
                 ax.set_xticks(range(len(tss)), [f"{t:g}" for t in tss])
                 ax.set_yticks(range(len(ns)), [str(n) for n in ns])
                 ax.set_xlabel("Ts [s]")
@@ -156,7 +157,9 @@ def sensitivity_figures(runs, tables, figures, out: Path) -> list[tuple[str, str
                 for i in range(len(ns)):
                     for j in range(len(tss)):
                         if np.isfinite(m[i, j]):
-                            ax.text(j, i, f"{m[i, j]:.3g}", ha="center", va="center", color="w", fontsize=8)
+                            light = hi > lo and (m[i, j] - lo) / (hi - lo) > 0.6  # viridis is light at the top
+                            ax.text(j, i, f"{m[i, j]:.3g}", ha="center", va="center", fontsize=8,
+                                    color="k" if light else "w")
                 fig.colorbar(im, ax=ax)
             fig.suptitle(f"{sweep}: {ph} phase, Ts x N")
             fig.tight_layout()
@@ -346,7 +349,8 @@ def timing_figures(runs, solves, tables, wall, figures, out: Path) -> list[tuple
                         hi = max(d.max() for _, d in data)
                         bins = np.linspace(0, hi * 1.02 if hi > 0 else 1, 40)
                         for v, d in data:
-                            ax.hist(d, bins=bins, histtype="step", lw=1.5, label=f"{var} = {v:g} ({len(d)})")
+                            name = f"Ts = {v:g} s" if var == "Ts_s" else f"N = {v:g}"
+                            ax.hist(d, bins=bins, histtype="step", lw=1.5, label=f"{name} ({len(d)} solves)")
                         ax.legend(fontsize=7)
                     ax.set_title(f"{sweep}: {', '.join(sorted(g['phase'].unique()))}", fontsize=9)
                     ax.set_xlabel(label)
@@ -419,6 +423,27 @@ def _table_html(df: pd.DataFrame, max_rows: int = 400) -> str:
     return f"{note}<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
+def repeat_checks(runs: pd.DataFrame) -> pd.DataFrame:
+    """Points run more than once with identical inputs (execution.repeat): do the records agree?"""
+    if "repeat" not in runs or not (runs["repeat"] > 0).any():
+        return pd.DataFrame()
+    same = ["sweep", "build", "mode", "scenario", "start_id", "seed",
+            *[c for c in runs.columns if c.startswith(("guidance.", "model.", "N_", "Ts_"))]]
+    rows = []
+    for _, g in runs.groupby(same, sort=False, dropna=False):
+        if len(g) < 2:
+            continue
+        ins = g["instructions_total"]
+        rows.append({"sweep": g["sweep"].iloc[0], "target": g["build"].iloc[0], "mode": g["mode"].iloc[0],
+                     "scenario": g["scenario"].iloc[0], "seed": int(g["seed"].iloc[0]), "repeats": len(g),
+                     "end": " / ".join(sorted(set(map(str, g["end"])))),
+                     "trajectory_identical": bool(g[["steps", "dv_total_mps", "t_f_s", "final_range_to_port_m"]]
+                                                  .nunique(dropna=False).max() == 1),
+                     "instructions_identical": (bool(ins.nunique() == 1) if (ins > 0).any() else "not counted"),
+                     "instructions_total": ins.iloc[0]})
+    return pd.DataFrame(rows)
+
+
 def build_tables(result) -> tuple[dict, dict]:
     """(deterministic tables, wall-time tables) of the study's report kind."""
     kind = result.study.report["kind"]
@@ -433,6 +458,9 @@ def build_tables(result) -> tuple[dict, dict]:
     if not solves.empty:
         det, wall = timing_tables(runs, solves)
         tables.update(det)
+    checks = repeat_checks(runs)
+    if not checks.empty:
+        tables["repeat_checks"] = checks
     return tables, wall
 
 

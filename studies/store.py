@@ -18,6 +18,7 @@ import datetime as _dt
 import json
 import os
 import shutil
+import time
 from pathlib import Path
 
 OWNER = "study.json"
@@ -114,7 +115,7 @@ class Store:
         self._log({"key": key, "event": "failed", "error": error[:500]})
 
     def _log(self, entry: dict) -> None:
-        line = (json.dumps({"utc": _utc(), **entry}) + "\n").encode()
+        line = (json.dumps({"utc": _utc(), "t": round(time.time(), 3), **entry}) + "\n").encode()
         fd = os.open(self.ledger, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         try:
             os.write(fd, line)
