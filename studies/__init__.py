@@ -67,8 +67,9 @@ def run_study(study: str | Path | Study, *, quick: bool = False, jobs: int | Non
     from .store import Store
 
     st = study if isinstance(study, Study) else load(study, quick=quick)
-    p = execute.plan(st, say=say)
     store = Store(out if out is not None else execute.default_out(st))
+    store.check({"study": st.name, "quick": st.quick}, grid=False)  # before any build
+    p = execute.plan(st, say=say)
     store.check(p.owner)
     store.claim(p.owner, st.source)
     done = store.finished() & set(p.tasks)

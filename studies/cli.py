@@ -42,9 +42,11 @@ def main(argv=None) -> int:
     from . import spec
 
     if args.list:
+        from . import grid
+
         for name in spec.available():
-            st = spec.load(name)
-            print(f"{name:<20} {st.description}")
+            full, quick = (grid.distinct_runs(grid.expand(spec.load(name, quick=q))) for q in (False, True))
+            print(f"{name:<18} {full:>6} runs ({quick} with --quick)  {spec.load(name).description}")
         return 0
     if not args.study:
         ap.error("a study file is needed (or --list)")
@@ -58,6 +60,9 @@ def main(argv=None) -> int:
     except (StudyError, OwnershipError) as exc:
         print(f"rvd-study: {exc}", file=sys.stderr)
         return 2
+    except (OSError, RuntimeError) as exc:  # no flight executable, a failed cross build, no Dask scheduler
+        print(f"rvd-study: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
     o = result.outcome
     if o is not None:
         rate = o.stored / o.wall_s * 3600 if o.wall_s > 0 else float("nan")

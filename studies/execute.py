@@ -48,9 +48,12 @@ def _local_worker_init() -> None:
 class LocalExecutor:
     def __init__(self, jobs: int):
         self.jobs = jobs
-        self.pool = cf.ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"),
-                                           initializer=_local_worker_init)
+        self.pool = self._new_pool()
         self.slots = jobs + 1  # one queued behind the busy workers, so none waits for the client
+
+    def _new_pool(self):
+        return cf.ProcessPoolExecutor(max_workers=self.jobs, mp_context=multiprocessing.get_context("spawn"),
+                                      initializer=_local_worker_init)
 
     def describe(self) -> str:
         return f"{self.jobs} local process{'es' if self.jobs > 1 else ''}"
@@ -58,7 +61,13 @@ class LocalExecutor:
     def submit(self, task: dict):
         from .run import execute
 
-        return self.pool.submit(execute, task)
+        try:
+            return self.pool.submit(execute, task)
+        except cf.process.BrokenProcessPool:
+            # A worker died (its runs under way fail and are retried on the next start): new workers.
+            self.pool.shutdown(wait=False, cancel_futures=True)
+            self.pool = self._new_pool()
+            return self.pool.submit(execute, task)
 
     def wait(self, futures, timeout: float):
         done, _ = cf.wait(futures, timeout=timeout, return_when=cf.FIRST_COMPLETED)
@@ -198,8 +207,9 @@ def execute_plan(p: Plan, store: Store, todo: list[str], executor, *, progress: 
 
     out = Outcome()
     t0 = time.monotonic()
+    tty = sys.stderr.isatty()
     bar = tqdm(total=len(todo), unit="run", desc=p.study.label, file=sys.stderr, disable=not progress,
-               dynamic_ncols=True, smoothing=0.05, mininterval=0.5)
+               dynamic_ncols=tty, smoothing=0.05, mininterval=0.5 if tty else 30.0)
     queue = list(reversed(todo))
     running: dict = {}
     with _Stop(lambda s: bar.write(s)) as stop:

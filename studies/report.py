@@ -217,7 +217,18 @@ def robustness_tables(runs: pd.DataFrame) -> dict[str, pd.DataFrame]:
                         "runs_with_safety_entry": int(r["safety_verdict"].notna().sum()),
                         "unsafe_runs": g["unsafe_runs"].sum() if have_safety else math.nan,
                         "safety_violations": g["safety_violations"].sum() if have_safety else math.nan})
-    return {"per_start": per_start, "overall": pd.DataFrame(overall)}
+    tables = {"per_start": per_start, "overall": pd.DataFrame(overall)}
+    limits = [c for c in runs.columns if c.startswith("safety.")]
+    if limits:  # per limit of the safety monitor: how often, in how many runs
+        rows = []
+        for (sweep, target), g in runs.groupby(["sweep", "build"], sort=False):
+            for c in limits:
+                v = pd.to_numeric(g[c], errors="coerce")
+                rows.append({"sweep": sweep, "target": target, "limit": c[len("safety."):],
+                             "violations": v.sum(), "runs_violating": int((v > 0).sum()), "runs": len(g),
+                             "starts_violating": int(g.loc[v > 0, "start_id"].nunique())})
+        tables["safety_by_limit"] = pd.DataFrame(rows)
+    return tables
 
 
 def robustness_figures(runs, tables, figures, out: Path) -> list[tuple[str, str]]:
@@ -262,14 +273,26 @@ def robustness_figures(runs, tables, figures, out: Path) -> list[tuple[str, str]
         fig.tight_layout()
         made.append(("success", _save(fig, out / "success.png")))
     if "safety" in figures:
-        fig, ax = plt.subplots(figsize=(10, 3.8))
+        fig, ax = plt.subplots(figsize=(10, 4.2))
         if ps["safety_violations"].notna().any():
-            g = ps.sort_values("safety_violations")
-            ax.bar(range(len(g)), g["safety_violations"], color="tab:red")
-            ax.set_xlabel("start (sorted)")
+            order = ps.sort_values("safety_violations", kind="stable")
+            limits = [c for c in runs.columns if c.startswith("safety.")]
+            x = np.arange(len(order))
+            if limits:  # stacked by limit
+                per = runs.groupby(["sweep", "build", "start_id"], sort=False)[limits].sum(min_count=1)
+                bottom = np.zeros(len(order))
+                for c in limits:
+                    v = np.array([per.loc[(r.sweep, r.target, r.start_id), c] for r in order.itertuples()], float)
+                    v = np.nan_to_num(v)
+                    ax.bar(x, v, bottom=bottom, label=c[len("safety."):])
+                    bottom += v
+                ax.legend(fontsize=8)
+            else:
+                ax.bar(x, order["safety_violations"], color="tab:red")
+            ax.set_xticks(x, order["start"], rotation=90, fontsize=7)
             ax.set_ylabel("violations (all repeats)")
-            ax.set_title(f"safety monitor (truth): {int(ps['unsafe_runs'].sum())} unsafe runs, "
-                         f"{int(ps['safety_violations'].sum())} violations")
+            ax.set_title(f"safety monitor (on truth): {int(ps['unsafe_runs'].sum())} of {int(ps['runs'].sum())} runs "
+                         f"unsafe, {int(ps['safety_violations'].sum())} violations")
         else:
             ax.text(0.5, 0.5, "no safety entry in these run records\n(no truth-based safety monitor ran)",
                     ha="center", va="center", fontsize=12)

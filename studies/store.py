@@ -40,8 +40,9 @@ class Store:
         self.incoming = self.out / ".incoming"
         self.ledger = self.out / "ledger.jsonl"
 
-    def check(self, owner: dict) -> None:
-        """Raises OwnershipError unless the folder is new, empty, or already this study's and grid's."""
+    def check(self, owner: dict, grid: bool = True) -> None:
+        """Raises OwnershipError unless the folder is new, empty, or already this study's and grid's
+        (grid=False: the study and size only, before the grid is known)."""
         if not self.out.exists():
             return
         if not self.out.is_dir():
@@ -57,12 +58,15 @@ class Store:
         except (OSError, json.JSONDecodeError) as exc:
             raise OwnershipError(f"{path} is unreadable ({exc})") from None
         for field, what in (("study", "study"), ("quick", "size (--quick or full)"), ("grid", "grid")):
+            if field == "grid" and not grid:
+                continue
             if have.get(field) != owner.get(field):
                 raise OwnershipError(
                     f"{self.out} belongs to study {have.get('study')!r}"
                     f"{' (quick)' if have.get('quick') else ''} with grid {str(have.get('grid'))[:12]} "
-                    f"({have.get('runs')} runs); this is {owner['study']!r}{' (quick)' if owner['quick'] else ''} "
-                    f"with grid {owner['grid'][:12]} ({owner['runs']} runs): another {what}. "
+                    f"({have.get('runs')} runs); this is {owner['study']!r}{' (quick)' if owner['quick'] else ''}"
+                    + (f" with grid {owner['grid'][:12]} ({owner['runs']} runs)" if grid else "")
+                    + f": another {what}. "
                     "Choose another --out (results of different grids are never merged)")
 
     def claim(self, owner: dict, study_file: Path) -> None:

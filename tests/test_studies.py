@@ -18,9 +18,9 @@ import pandas as pd
 import pytest
 
 from host_sim.record import load_events, load_run
-from studies import OwnershipError, StudyError, grid, run_study, spec
+from studies import OwnershipError, grid, run_study, spec
 from studies.aggregate import frames_equal
-from studies.metrics import WALL_TIME_METRICS, quadrant, run_metrics, safety
+from studies.metrics import WALL_TIME_METRICS, quadrant, safety
 
 ROOT = Path(__file__).resolve().parent.parent
 RVD_STUDY = [sys.executable, "-m", "studies.cli"]
