@@ -39,7 +39,14 @@ def simulator_identity() -> dict:
     for p in sorted(root.rglob("*")):
         if p.is_file() and p.suffix in (".py", ".toml") and "__pycache__" not in p.parts:
             h.update(str(p.relative_to(root)).encode() + b"\0" + p.read_bytes() + b"\0")
-    return {"host_sim_sha": h.hexdigest()[:20], "numpy": numpy.__version__, "scipy": scipy.__version__}
+    # and the code of this package that turns a point into a run (settings -> flight options or
+    # GuidanceParams, the in-process flight logic, the run itself)
+    here = Path(__file__).resolve().parent
+    r = hashlib.sha256()
+    for name in ("settings.py", "inprocess.py", "run.py"):
+        r.update(name.encode() + b"\0" + (here / name).read_bytes() + b"\0")
+    return {"host_sim_sha": h.hexdigest()[:20], "runner_sha": r.hexdigest()[:20], "numpy": numpy.__version__,
+            "scipy": scipy.__version__}
 
 
 @functools.lru_cache(maxsize=1)

@@ -14,6 +14,7 @@ and running the same study again computes only the rest.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import ctypes
 import multiprocessing
 import os
@@ -45,6 +46,24 @@ def _local_worker_init() -> None:
         os._exit(1)
 
 
+@contextlib.contextmanager
+def _main_not_imported():
+    """Spawned workers would import the caller's main script again (multiprocessing's "safe
+    importing of main module" rule), running an unguarded script's study a second time in every
+    worker. They need only this package, so they are started with __main__ hidden."""
+    main = sys.modules.get("__main__")
+    saved = {k: getattr(main, k) for k in ("__file__", "__spec__") if main is not None and hasattr(main, k)}
+    try:
+        if main is not None:
+            main.__spec__ = None
+            if hasattr(main, "__file__"):
+                del main.__file__
+        yield
+    finally:
+        for k, v in saved.items():
+            setattr(main, k, v)
+
+
 class LocalExecutor:
     def __init__(self, jobs: int):
         self.jobs = jobs
@@ -61,13 +80,14 @@ class LocalExecutor:
     def submit(self, task: dict):
         from .run import execute
 
-        try:
-            return self.pool.submit(execute, task)
-        except cf.process.BrokenProcessPool:
-            # A worker died (its runs under way fail and are retried on the next start): new workers.
-            self.pool.shutdown(wait=False, cancel_futures=True)
-            self.pool = self._new_pool()
-            return self.pool.submit(execute, task)
+        with _main_not_imported():  # workers are started on demand, inside submit
+            try:
+                return self.pool.submit(execute, task)
+            except cf.process.BrokenProcessPool:
+                # A worker died (its runs under way fail and are retried on the next start): new workers.
+                self.pool.shutdown(wait=False, cancel_futures=True)
+                self.pool = self._new_pool()
+                return self.pool.submit(execute, task)
 
     def wait(self, futures, timeout: float):
         done, _ = cf.wait(futures, timeout=timeout, return_when=cf.FIRST_COMPLETED)
@@ -212,6 +232,7 @@ def execute_plan(p: Plan, store: Store, todo: list[str], executor, *, progress: 
                dynamic_ncols=tty, smoothing=0.05, mininterval=0.5 if tty else 30.0)
     queue = list(reversed(todo))
     running: dict = {}
+    broken_in_a_row = 0  # runs lost to dead workers since the last run that came back
     with _Stop(lambda s: bar.write(s)) as stop:
         try:
             while queue or running:
@@ -232,10 +253,15 @@ def execute_plan(p: Plan, store: Store, todo: list[str], executor, *, progress: 
                         out.failed[key] = f"{type(exc).__name__}: {exc}"
                         store.failed(key, out.failed[key])
                         bar.set_postfix(failed=len(out.failed))
+                        if isinstance(exc, cf.process.BrokenProcessPool):
+                            broken_in_a_row += 1
+                            if broken_in_a_row > 2 * executor.slots:
+                                raise RuntimeError(f"the local worker processes die before finishing any run ({exc})") from None
                     else:
                         store.commit(res)
                         out.stored += 1
                         out.cpu_s += res.get("cpu_s", 0.0)
+                        broken_in_a_row = 0
                     bar.update(1)
         finally:
             out.stopped = stop.requested > 0

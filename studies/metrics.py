@@ -10,13 +10,15 @@ truth-based safety monitor) is optional: records without it give None/NaN for th
 """
 from __future__ import annotations
 
+import hashlib
 import math
 from pathlib import Path
 
 import numpy as np
 
 PHASES = {1: "rendezvous", 2: "approach", 3: "docking"}
-METRICS_VERSION = 1
+# Stored metrics.json files are reused only if this file has not changed since they were computed.
+METRICS_VERSION = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
 # Radial bins of the starting range [m] (dissertation Fig. 4.3 colours the starts by distance).
 RANGE_BINS_M = (0.0, 500.0, 1000.0, 1500.0, 2000.0, 2500.0, math.inf)
 

@@ -189,11 +189,15 @@ def sensitivity_figures(runs, tables, figures, out: Path) -> list[tuple[str, str
 
 # ---- robustness ----------------------------------------------------------------------------------
 def robustness_tables(runs: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    from .aggregate import point_columns
+
     rows = []
     have_safety = runs["safety_verdict"].notna().any()
-    for (sweep, target, sid), g in runs.groupby(["sweep", "build", "start_id"], sort=False):
+    point = point_columns(runs)
+    for values, g in runs.groupby([*point, "start_id"], sort=False, dropna=False):
         d = g[g["docked"]]
-        rows.append({"sweep": sweep, "target": target, "start": g["scenario"].iloc[0], "start_id": sid,
+        coords = dict(zip(point, values))
+        rows.append({**coords, "start": g["scenario"].iloc[0], "start_id": values[-1],
                      "range0_m": g["range0_m"].iloc[0], "quadrant": int(g["quadrant"].iloc[0]), "runs": len(g),
                      "docked_pct": 100.0 * g["docked"].mean(),
                      "dv_mean_mps": d["dv_total_mps"].mean(), "dv_std_mps": d["dv_total_mps"].std(ddof=1),
@@ -204,9 +208,10 @@ def robustness_tables(runs: pd.DataFrame) -> dict[str, pd.DataFrame]:
                      if have_safety else math.nan})
     per_start = pd.DataFrame(rows)
     overall = []
-    for (sweep, target), g in per_start.groupby(["sweep", "target"], sort=False):
-        r = runs[(runs["sweep"] == sweep) & (runs["build"] == target)]
-        overall.append({"sweep": sweep, "target": target, "starts": len(g), "runs": len(r),
+    for values, g in per_start.groupby(point, sort=False, dropna=False):
+        coords = dict(zip(point, values))
+        r = runs.merge(pd.DataFrame([coords]), on=point, how="inner") if point else runs
+        overall.append({**coords, "starts": len(g), "runs": len(r),
                         "success_pct": 100.0 * r["docked"].mean(),
                         "dv_mean_mps": r.loc[r["docked"], "dv_total_mps"].mean(),
                         "t_f_mean_min": r.loc[r["docked"], "t_f_min"].mean(),
@@ -282,7 +287,7 @@ def robustness_figures(runs, tables, figures, out: Path) -> list[tuple[str, str]
                 per = runs.groupby(["sweep", "build", "start_id"], sort=False)[limits].sum(min_count=1)
                 bottom = np.zeros(len(order))
                 for c in limits:
-                    v = np.array([per.loc[(r.sweep, r.target, r.start_id), c] for r in order.itertuples()], float)
+                    v = np.array([per.loc[(r.sweep, r.build, r.start_id), c] for r in order.itertuples()], float)
                     v = np.nan_to_num(v)
                     ax.bar(x, v, bottom=bottom, label=c[len("safety."):])
                     bottom += v

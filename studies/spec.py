@@ -271,6 +271,8 @@ def load(name_or_path: str | Path, quick: bool = False) -> Study:
     if not isinstance(quick_doc, dict):
         err("quick", f"expected a table, got {quick_doc!r}")
     quick_sweeps = quick_doc.pop("sweep", None) if isinstance(quick_doc, dict) else None
+    if "study" in quick_doc:
+        err("quick.study", "the quick size keeps the study's name and description")
     checked_quick = _walk(quick_doc, SCHEMA, "quick", err)
     sweep_prefix = "sweep"
     if quick:
@@ -329,7 +331,15 @@ def load(name_or_path: str | Path, quick: bool = False) -> Study:
             if len(set(map(repr, axes[axis]))) != len(axes[axis]):
                 err(key, "a value appears twice")
         _check_config(config, where, err)
-        sweeps.append(Sweep(name=name, config=config, axes=axes))
+        sweep = Sweep(name=name, config=config, axes=axes)
+        if any(not a.startswith("scenario.") for a in axes):  # each combination must make sense too
+            for point in sweep.points():
+                combo = copy.deepcopy(config)
+                for axis, value in point.items():
+                    if not axis.startswith("scenario."):
+                        _set_path(combo, axis, value)
+                _check_config(combo, f"{where}.vary" if where else "vary", err)
+        sweeps.append(sweep)
     return Study(name=checked["study"]["name"], description=checked["study"].get("description", ""),
                  source=path, quick=quick, report=report, sweeps=sweeps, base=base)
 
