@@ -406,3 +406,67 @@ def test_interrupted_three_times_sigint_and_sigkill_then_resumed_gives_the_unint
     assert not [e for e in entries if e["event"] in ("duplicate", "failed")]
     assert len(list((out / "runs").iterdir())) == total
     assert not (out / ".incoming").exists() or not any((out / ".incoming").iterdir())
+
+
+# ---- the report kinds on real records -------------------------------------------------------------
+def test_qemu_user_study_counts_instructions_that_repeat_and_reports_timing(tmp_path):
+    study = write_study(tmp_path / "qemu.toml", """
+        [study]
+        name = "qemu_tiny"
+        [execution]
+        mode = "qemu-user"
+        targets = ["q7s"]
+        repeat = 2
+        [scenarios]
+        names = ["case1_vbar"]
+        [guidance]
+        rendezvous = { N = 15 }
+        [report]
+        kind = "timing"
+    """ + IDEAL)
+    res = run_study(study, out=tmp_path / "out", jobs=2, progress=False, say=lambda s: None)
+    assert res.complete and res.total == 2 and res.runs["docked"].all()
+    s = res.solves
+    assert len(s) > 50 and (s["instructions"] > 0).all()
+    # estimated target time = instructions x CPI / f_clk of the registry's Cortex-A9 model
+    from qemu import targets
+
+    t = targets.load("q7s")
+    np.testing.assert_allclose(s["target_us_nominal"], s["instructions"] * t.cpi.nominal / t.clock_hz * 1e6, rtol=1e-12)
+    stats = res.tables["solve_stats"]
+    assert set(stats["phase"]) == {"rendezvous", "approach", "docking"}
+    assert stats.loc[stats["phase"] == "rendezvous", "N"].tolist() == [15]
+    check = res.tables["repeat_checks"]
+    assert check["trajectory_identical"].all() and check["instructions_identical"].all()
+    assert (res.out / "report" / "solves.parquet").is_file() and (res.out / "report" / "timing_solve_wall.csv").is_file()
+
+
+def test_robustness_report_spreads_are_the_per_start_standard_deviations(tmp_path):
+    study = write_study(tmp_path / "robust.toml", """
+        [study]
+        name = "robust_tiny"
+        [model]
+        truth = "cw"
+        sensor_noise = true
+        thrust_noise = true
+        impulsive = false
+        [scenarios]
+        random = { first = 30, count = 2 }
+        [noise]
+        repeats = 3
+        [report]
+        kind = "robustness"
+    """)
+    res = run_study(study, out=tmp_path / "out", jobs=2, progress=False, say=lambda s: None)
+    runs, per = res.runs, res.tables["per_start"]
+    assert res.complete and len(runs) == 6 and len(per) == 2
+    for _, row in per.iterrows():
+        g = runs[(runs["start_id"] == row["start_id"]) & runs["docked"]]
+        assert row["dv_std_mps"] == pytest.approx(np.std(g["dv_total_mps"].to_numpy(), ddof=1), rel=1e-12)
+        assert row["t_f_std_min"] == pytest.approx(np.std(g["t_f_s"].to_numpy() / 60.0, ddof=1), rel=1e-12)
+    assert runs.groupby("start_id")["dv_total_mps"].nunique().min() == 3  # the noise seeds differ
+    overall = res.tables["overall"].iloc[0]
+    assert overall["mean_of_per_start_dv_std_mps"] == pytest.approx(per["dv_std_mps"].mean())
+    assert overall["dissertation_dv_std_mps"] == 4.25 and np.isnan(overall["safety_violations"])
+    for fig in ("mean_dv_tf.png", "spread.png", "success.png", "safety.png"):
+        assert (res.out / "report" / fig).stat().st_size > 1000
