@@ -52,7 +52,8 @@ def run_key(point: RunPoint, engine: dict) -> str:
     return hashlib.sha256(canonical({"point": point.content(), "engine": engine}).encode()).hexdigest()[:24]
 
 
-def _scenario_list(config: dict, study: Study, where: str, overrides: dict, cache: dict) -> list[tuple[str, str]]:
+def _scenario_list(config: dict, study: Study, where: str, overrides: dict, cache: dict,
+                   overrides_key: str) -> list[tuple[str, str]]:
     """(label, canonical JSON of the Scenario) for the sweep's scenarios, overrides applied."""
     spec = config.get("scenarios", {})
     src = str(study.source)
@@ -93,9 +94,9 @@ def _scenario_list(config: dict, study: Study, where: str, overrides: dict, cach
         if overrides:
             merged = _merge(scen.to_dict(), overrides)
             try:
-                scen = scenarios.from_dict(merged, source=f"{src}: {where}scenario overrides of {label}")
+                scen = scenarios.from_dict(merged, source=f"{label} with these values")
             except scenarios.ScenarioError as exc:
-                raise StudyError(src, f"{where}scenarios.overrides", str(exc)) from None
+                raise StudyError(src, overrides_key, str(exc)) from None
         out.append((label, canonical(scen.to_dict())))
     return out
 
@@ -106,7 +107,7 @@ def expand(study: Study) -> list[RunPoint]:
     points: list[RunPoint] = []
     cache: dict = {}
     for sw in study.sweeps:
-        where = f"sweep {sw.name}: " if len(study.sweeps) > 1 or sw.name != "all" else ""
+        where = f"{sw.where}." if sw.where else ""
         for axes in sw.points():
             config = copy.deepcopy(sw.config)
             scen_over = copy.deepcopy(config.get("scenarios", {}).get("overrides", {}))
@@ -115,12 +116,16 @@ def expand(study: Study) -> list[RunPoint]:
                     _set_path(scen_over, path[len("scenario."):], value)
                 else:
                     _set_path(config, path, value)
+            varied = [a for a in axes if not a.startswith("scenario.")]
             try:
                 guidance = GuidanceSettings.from_table(config.get("guidance", {}))
                 guidance.guidance_params()  # the flight software's own check of the parameters
             except ValueError as exc:
-                raise StudyError(src, f"{where}guidance", str(exc)) from None
-            scen = _scenario_list(config, study, where, scen_over, cache)
+                key = f"{where}vary" if any(a.startswith("guidance.") for a in varied) else f"{where}guidance"
+                raise StudyError(src, key, str(exc).rstrip("; ")) from None
+            scen_axes = [a for a in axes if a.startswith("scenario.")]
+            over_key = f"{where}vary.{scen_axes[0]}" if scen_axes else f"{where}scenarios.overrides"
+            scen = _scenario_list(config, study, where, scen_over, cache, over_key)
             if not scen:
                 raise StudyError(src, f"{where}scenarios", "no scenarios (names and random are empty): "
                                                            "the grid has no runs")

@@ -116,5 +116,5 @@ class GuidanceSettings:
                 setattr(p, name, float(value))
         err = p.validate()
         if err:
-            raise ValueError(f"guidance settings: {err}")
+            raise ValueError(err.strip().rstrip(";"))
         return p

@@ -214,6 +214,7 @@ class Sweep:
     name: str
     config: dict                      # the study's tables with this sweep's overrides applied
     axes: dict[str, list]             # dotted path -> values (cartesian product)
+    where: str = ""                   # its place in the file for messages ("sweep[2]", "quick.sweep[0]")
 
     def points(self):
         """Each combination of the axes as {path: value} (one empty point without axes)."""
@@ -331,7 +332,7 @@ def load(name_or_path: str | Path, quick: bool = False) -> Study:
             if len(set(map(repr, axes[axis]))) != len(axes[axis]):
                 err(key, "a value appears twice")
         _check_config(config, where, err)
-        sweep = Sweep(name=name, config=config, axes=axes)
+        sweep = Sweep(name=name, config=config, axes=axes, where=where)
         if any(not a.startswith("scenario.") for a in axes):  # each combination must make sense too
             for point in sweep.points():
                 combo = copy.deepcopy(config)
