@@ -37,7 +37,6 @@ def _local_worker_init() -> None:
     """Each local worker: its own session (the terminal's Ctrl-C goes to the client alone, which
     then stops cleanly) and killed when the client dies (a SIGKILLed client leaves no worker)."""
     os.setsid()
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
     except OSError:
@@ -71,6 +70,10 @@ class LocalExecutor:
         self.slots = jobs + 1  # one queued behind the busy workers, so none waits for the client
 
     def _new_pool(self):
+        # One BLAS thread per worker (set before the workers import numpy): the runs are the
+        # parallelism, and threaded BLAS on small matrices is much slower on a loaded machine.
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
         return cf.ProcessPoolExecutor(max_workers=self.jobs, mp_context=multiprocessing.get_context("spawn"),
                                       initializer=_local_worker_init)
 
