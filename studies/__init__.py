@@ -72,20 +72,23 @@ def run_study(study: str | Path | Study, *, quick: bool = False, jobs: int | Non
     p = execute.plan(st, say=say)
     store.check(p.owner)
     store.claim(p.owner, st.source)
-    done = store.finished() & set(p.tasks)
-    todo = [k for k in p.tasks if k not in done]
-    say(f"{st.label}: {len(p.tasks)} runs ({len(p.points)} grid points), {len(done)} stored, {len(todo)} to run "
-        f"-> {store.out}")
-    outcome = None
-    if todo:
-        if dask:
-            executor = execute.DaskExecutor(dask, list(p.engines.values()))
-        else:
-            executor = execute.LocalExecutor(max(1, min(jobs or execute.default_jobs(), len(todo))))
-        say(f"{st.label}: computing on {executor.describe()}")
-        outcome = execute.execute_plan(p, store, todo, executor, progress=progress, say=say)
-        outcome.executor = executor.describe()
-    result = collect(st, p, store, outcome)
-    if write_report and result.complete:
-        result.report = report.write(result)
+    try:
+        done = store.finished() & set(p.tasks)
+        todo = [k for k in p.tasks if k not in done]
+        say(f"{st.label}: {len(p.tasks)} runs ({len(p.points)} grid points), {len(done)} stored, {len(todo)} to run "
+            f"-> {store.out}")
+        outcome = None
+        if todo:
+            if dask:
+                executor = execute.DaskExecutor(dask, list(p.engines.values()))
+            else:
+                executor = execute.LocalExecutor(max(1, min(jobs or execute.default_jobs(), len(todo))))
+            say(f"{st.label}: computing on {executor.describe()}")
+            outcome = execute.execute_plan(p, store, todo, executor, progress=progress, say=say)
+            outcome.executor = executor.describe()
+        result = collect(st, p, store, outcome)
+        if write_report and result.complete:
+            result.report = report.write(result)
+    finally:
+        store.release()
     return result

@@ -6,6 +6,7 @@
                          flight_sw.log, metrics.json); a folder appears here only complete
     OUT/.incoming/       records being written (cleared on start: a killed writer leaves only here)
     OUT/ledger.jsonl     one line per run stored (or failed), appended with one write each
+    OUT/.lock            held by the rvd-study working in the folder (one at a time)
     OUT/report/          report.html, figures, runs.csv/.parquet, summary tables
 
 A run folder is written under .incoming and renamed into runs/ in one step, so a SIGKILL at any
@@ -15,6 +16,7 @@ not yet in runs/. A folder that belongs to another study or another grid is refu
 from __future__ import annotations
 
 import datetime as _dt
+import fcntl
 import json
 import os
 import shutil
@@ -70,14 +72,28 @@ class Store:
                     "Choose another --out (results of different grids are never merged)")
 
     def claim(self, owner: dict, study_file: Path) -> None:
+        """Takes the folder for this process (refused while another rvd-study works in it)."""
         self.check(owner)
         self.runs.mkdir(parents=True, exist_ok=True)
+        self._lock = open(self.out / ".lock", "a+")
+        try:
+            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self._lock.close()
+            self._lock = None
+            raise OwnershipError(f"{self.out} is in use by another rvd-study right now") from None
         if not (self.out / OWNER).is_file():
             tmp = self.out / f".{OWNER}.tmp"
             tmp.write_text(json.dumps({"format": FORMAT, **owner, "created_utc": _utc()}, indent=1) + "\n")
             os.replace(tmp, self.out / OWNER)
             shutil.copyfile(study_file, self.out / "study.toml")
         shutil.rmtree(self.incoming, ignore_errors=True)
+
+    def release(self) -> None:
+        lock = getattr(self, "_lock", None)
+        if lock is not None:
+            lock.close()  # closing drops the lock (so does the process's death)
+            self._lock = None
 
     def finished(self) -> set[str]:
         """Keys of the runs stored complete."""

@@ -381,6 +381,10 @@ def test_interrupted_three_times_sigint_and_sigkill_then_resumed_gives_the_unint
         deadline = time.monotonic() + 300
         while _stored(out) < target and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
+        if sig == signal.SIGKILL:  # while one works there (here: stopped), a second rvd-study is refused
+            proc.send_signal(signal.SIGSTOP)
+            second = cli(study, "--out", out, "--jobs", "1")
+            assert second.returncode == 2 and "in use by another rvd-study" in second.stderr, second.stderr
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=300)
         if sig == signal.SIGINT:
