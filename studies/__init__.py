@@ -47,12 +47,34 @@ def collect(study: Study, plan, store, outcome=None) -> StudyResult:
 
     runs = aggregate.runs_frame(plan, store)
     summary = aggregate.summary_frame(runs, study.report["metrics"])
-    want_solves = study.report["kind"] == "timing" or any(t["point"].mode == "qemu-user" for t in plan.tasks.values())
+    want_solves = study.report["kind"] == "timing" or any(p.mode == "qemu-user" for p in plan.points)
     solves = aggregate.solves_frame(plan, store, runs) if want_solves and not runs.empty else pd.DataFrame()
     done = store.finished() & set(plan.tasks)
     result = StudyResult(study=study, out=store.out, fingerprint=plan.fingerprint, total=len(plan.tasks),
                          finished=len(done), runs=runs, summary=summary, solves=solves, outcome=outcome)
     result.tables, result.timing = report.build_tables(result)
+    return result
+
+
+def report_study(study: str | Path | Study, *, quick: bool = False, out: str | Path | None = None,
+                 say=print) -> StudyResult:
+    """The DataFrames and report of the runs stored in `out`, computing nothing and building
+    nothing (e.g. to redraw a report after the executables changed); the points are matched to the
+    stored runs by their content."""
+    from . import execute, report
+    from .store import Store
+
+    st = study if isinstance(study, Study) else load(study, quick=quick)
+    store = Store(out if out is not None else execute.default_out(st))
+    if not (store.out / "study.json").is_file():
+        raise OwnershipError(f"{store.out} holds no study to report")
+    store.check({"study": st.name, "quick": st.quick}, grid=False)
+    p, total = execute.stored_plan(st, store)
+    result = collect(st, p, store)
+    result.total = total
+    say(f"{st.label}: report of {result.finished} stored runs of {result.total} -> {store.out}")
+    if not result.runs.empty:
+        result.report = report.write(result)
     return result
 
 

@@ -61,10 +61,8 @@ def runs_frame(plan, store) -> pd.DataFrame:
             continue
         if key not in cache:
             cache[key] = _metrics(store.runs / key)
-        eng = plan.tasks[key]["engine"]
         row = coordinates(point, key)
-        row["build"] = eng.identity.get("build", point.target)
-        row.update(cache[key])
+        row.update(cache[key])  # with the record's build (target, or target-cpu for a CPU override)
         rows.append(row)
     df = pd.DataFrame(rows)
     for c in df.columns:  # swept integers stay integers where another sweep leaves them empty

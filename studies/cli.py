@@ -32,6 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--dask", metavar="ADDRESS", default=None, help="Dask scheduler, e.g. tcp://127.0.0.1:8786")
     ap.add_argument("--out", default=None, help="output folder (default reports/studies/<name>[-quick])")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ap.add_argument("--report-only", action="store_true",
+                    help="redraw the report from the runs stored in the output folder (computes and builds nothing)")
     ap.add_argument("--list", action="store_true", help="list the shipped studies and exit")
     return ap
 
@@ -52,8 +54,17 @@ def main(argv=None) -> int:
         ap.error("a study file is needed (or --list)")
     if args.jobs is not None and args.jobs < 1:
         ap.error(f"--jobs must be >= 1, got {args.jobs}")
-    from . import OwnershipError, StudyError, run_study
+    from . import OwnershipError, StudyError, report_study, run_study
 
+    if args.report_only:
+        try:
+            result = report_study(args.study, quick=args.quick, out=args.out,
+                                  say=lambda s: print(s, file=sys.stderr, flush=True))
+        except (StudyError, OwnershipError) as exc:
+            print(f"rvd-study: {exc}", file=sys.stderr)
+            return 2
+        print(f"report: {result.report}")
+        return 0
     try:
         result = run_study(args.study, quick=args.quick, jobs=args.jobs, dask=args.dask, out=args.out,
                            progress=not args.no_progress, say=lambda s: print(s, file=sys.stderr, flush=True))

@@ -215,6 +215,31 @@ def plan(study: spec.Study, say=print) -> Plan:
     return Plan(study, points, keys, tasks, engines_by, fingerprint)
 
 
+def stored_plan(study: spec.Study, store: Store) -> tuple[Plan, int]:
+    """The grid mapped onto the runs stored in `store` by their content (for a report of what is
+    there, whatever built it; points without a stored run are left out), and the grid's size."""
+    import hashlib
+    import json
+
+    from .run import content_id
+
+    by_content = {}
+    for key in store.finished():
+        run = json.loads((store.runs / key / "meta.json").read_text())["study_run"]
+        by_content[run.get("content")] = key
+    points, keys, tasks = [], [], {}
+    every = grid.expand(study)
+    for p in every:
+        key = by_content.get(content_id(p))
+        if key is None:
+            continue
+        points.append(p)
+        keys.append(key)
+        tasks.setdefault(key, {"key": key, "study": study.name, "point": p, "engine": None})
+    fingerprint = hashlib.sha256("\n".join(sorted(tasks)).encode()).hexdigest()
+    return Plan(study, points, keys, tasks, {}, fingerprint), grid.distinct_runs(every)
+
+
 @dataclass
 class Outcome:
     stored: int = 0

@@ -128,7 +128,8 @@ def run_metrics(run_dir: str | Path | None = None, *, meta=None, steps=None, eve
     """Scalar metrics of one run (see RUN_METRICS; plus WALL_TIME_METRICS and safety.<limit>)."""
     if meta is None:
         meta, steps, events = load(run_dir)
-    m: dict = {"end": meta.get("end"), "docked": bool(meta.get("docked")), "steps": meta.get("steps")}
+    m: dict = {"build": meta.get("build") or meta.get("target"), "end": meta.get("end"),
+               "docked": bool(meta.get("docked")), "steps": meta.get("steps")}
     t_f = float(meta.get("t_end_s", math.nan))
     m["t_f_s"], m["t_f_min"] = t_f, t_f / 60.0
     m["dv_total_mps"] = float(meta.get("dv_total_mps", math.nan))

@@ -9,6 +9,7 @@ store it); a flight software that crashed or never docked is a finished run with
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import resource
@@ -32,10 +33,18 @@ def _cpu_s() -> float:
     return s.ru_utime + s.ru_stime + c.ru_utime + c.ru_stime
 
 
+def content_id(point) -> str:
+    """The point's content alone (without the engine): finds stored runs again for a report."""
+    from .grid import canonical
+
+    return hashlib.sha256(canonical(point.content()).encode()).hexdigest()[:24]
+
+
 def record_meta(task: dict) -> dict:
     p, eng = task["point"], task["engine"]
     t = eng.target
-    meta = {"study_run": {"key": task["key"], "study": task["study"], "label": p.scenario_label, "seed": p.seed,
+    meta = {"study_run": {"key": task["key"], "content": content_id(p), "study": task["study"],
+                          "label": p.scenario_label, "seed": p.seed,
                           "repeat": p.repeat, "mode": p.mode, "target": p.target, "cpu": p.cpu,
                           "guidance": p.guidance.to_dict(), "model": dict(p.model), "engine": eng.identity},
             "scenario_label": p.scenario_label, "mode": p.mode, "kind": "study", "horizons": list(p.guidance.horizon),

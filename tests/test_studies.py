@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 
 from host_sim.record import load_events, load_run
-from studies import OwnershipError, grid, run_study, spec
+from studies import OwnershipError, grid, report_study, run_study, spec
 from studies.aggregate import frames_equal
 from studies.metrics import WALL_TIME_METRICS, quadrant, safety
 
@@ -344,6 +344,13 @@ def test_another_study_or_grid_into_the_same_folder_is_refused(tmp_path):
     assert sorted(p.name for p in (out / "runs").iterdir()) == before
     again = run_study(a, out=out, jobs=1, progress=False, say=lambda s: None)  # the same study resumes: nothing to do
     assert again.outcome is None and frames_equal(deterministic(again.runs), deterministic(first.runs))
+    # a report of what is stored, matched by content, needs no ownership of the grid and computes nothing
+    partial = report_study(b, out=out, say=lambda s: None)
+    assert (partial.total, partial.finished, len(partial.runs)) == (2, 1, 1)
+    assert frames_equal(deterministic(partial.runs), deterministic(first.runs))
+    assert sorted(p.name for p in (out / "runs").iterdir()) == before
+    r = cli(a, "--out", out, "--report-only")
+    assert r.returncode == 0 and "report:" in r.stdout, r.stderr
 
 
 # ---- interrupted and resumed ------------------------------------------------------------------------
