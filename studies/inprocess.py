@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Optional
 
 from host_sim import messages as msg
+from host_sim import server as server_module
 from host_sim.record import RunRecorder
 from host_sim.scenario import Scenario
 from host_sim.server import FLIGHT_COLUMNS, PilServer, RunSummary, ServerConfig
@@ -41,12 +42,26 @@ def _finite_or(v: float, fallback: float = -1.0) -> float:
     return v if v == v and abs(v) != float("inf") else fallback
 
 
+def check_supported() -> None:
+    """Refuses a flight software whose application does more per message than this mirror: a
+    navigation filter between the measurements and the guidance (and the error-model options that
+    configure it and the guidance's margins) lives in FlightApp::handle_nav, not in Guidance, so the
+    in-process path would fly another guidance than the executable. Use mode "native" then."""
+    import flight_sw
+
+    if hasattr(flight_sw, "NavFilter"):
+        raise RuntimeError("mode 'in-process' does not reproduce this flight software's per-message logic "
+                           "(its navigation filter and error-model margins run in the flight application): "
+                           "use mode 'native'")
+
+
 class InProcessFlight:
     """The flight application's per-message logic around an in-process flight_sw.Guidance."""
 
     def __init__(self, settings: GuidanceSettings):
         import flight_sw
 
+        check_supported()
         self.settings = settings
         self.params = settings.guidance_params()
         self.guidance = flight_sw.Guidance(self.params)
@@ -176,7 +191,9 @@ def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int 
                        lockstep=cfg.lockstep, delay_model=cfg.delay_model, zenoh_mode="in-process")
     record_meta.update(meta or {})
     run_dir = Path(run_dir)
-    recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=FLIGHT_COLUMNS)
+    # the per-step columns the server fills (flight telemetry; a safety monitor's margins where it has one)
+    columns = FLIGHT_COLUMNS + tuple(getattr(server_module, "SAFETY_COLUMNS", ()))
+    recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=columns)
     server = PilServer(sim, cfg, record=recorder)
     server.link = InProcessLink(flight)
     status = "failed"
@@ -197,5 +214,6 @@ def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int 
                                                       ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction",
                                                        "period_s", "solver_mode", "solver_max_iter", "session")},
             flight_telemetry=None if s.telemetry is None else vars(s.telemetry),
+            **({"safety": s.safety} if hasattr(s, "safety") else {}),
         )
     return summary, run_dir

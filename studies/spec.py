@@ -153,7 +153,7 @@ SCHEMA: dict[str, Any] = {
 }
 SWEEP_TABLES = ("execution", "model", "guidance", "scenarios", "noise")  # a sweep may override these
 VARY_ROOTS = ("model", "guidance", "scenario")  # and vary these ("scenario." = a scenario parameter)
-DEFAULTS = {"execution": {"mode": "in-process", "repeat": 1, "cmd_timeout_s": 120.0},
+DEFAULTS = {"execution": {"mode": "native", "repeat": 1, "cmd_timeout_s": 120.0},
             "model": {"truth": "nonlinear", "sensor_noise": True, "thrust_noise": True, "impulsive": False,
                       "delay": "none", "j2": True, "drag": True},
             "noise": {"repeats": 1, "first_seed": 0}}

@@ -364,7 +364,7 @@ def test_interrupted_three_times_sigint_and_sigkill_then_resumed_gives_the_unint
         [study]
         name = "resume"
         [execution]
-        mode = "in-process"
+        mode = "native"
         [scenarios]
         random = { first = 20, count = 8 }
         [report]
