@@ -116,10 +116,14 @@ def safety(meta: dict, events) -> dict:
         elif events is not None and len(events):
             kinds = events["kind"].astype(str)
             out["safety_violations"] = float(kinds.str.startswith(("safety", "violation")).sum())
-    # Every numeric per-limit count, as its own column (safety.<limit>)
-    per_limit = entry.get("violations")
+    # Every per-limit count, as its own column (safety.<limit>): {"per_limit": {limit: {"violations":
+    # n, ...}}} or {"violations": {limit: n or [episodes]}}
+    per_limit = entry.get("per_limit")
     if isinstance(per_limit, dict):
         for name, v in per_limit.items():
+            out[f"safety.{name}"] = _count(v.get("violations", 0)) if isinstance(v, dict) else _count(v)
+    elif isinstance(entry.get("violations"), dict):
+        for name, v in entry["violations"].items():
             out[f"safety.{name}"] = _count(v)
     return out
 

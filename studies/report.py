@@ -220,6 +220,7 @@ def robustness_tables(runs: pd.DataFrame) -> dict[str, pd.DataFrame]:
                         "mean_of_per_start_t_f_std_min": g["t_f_std_min"].mean(),
                         "dissertation_t_f_std_min": DISSERTATION_CH5["t_f_std_min"],
                         "runs_with_safety_entry": int(r["safety_verdict"].notna().sum()),
+                        "verdicts": ", ".join(f"{v} {n}" for v, n in r["safety_verdict"].value_counts().sort_index().items()),
                         "unsafe_runs": g["unsafe_runs"].sum() if have_safety else math.nan,
                         "safety_violations": g["safety_violations"].sum() if have_safety else math.nan})
     tables = {"per_start": per_start, "overall": pd.DataFrame(overall)}

@@ -160,6 +160,10 @@ def test_safety_metrics_tolerate_records_without_a_monitor_and_read_one_when_pre
     assert got["safety_verdict"] == "unsafe" and got["safety_violations"] == 5.0
     assert got["safety.keepout"] == 2 and got["safety.overshoot"] == 3
     assert safety({"safety": {"safe": True, "violation_count": 0}}, None)["safety_verdict"] == "safe"
+    # the shape of host_sim's truth-based monitor: a total and per-limit statistics
+    monitor = safety({"safety": {"verdict": "unsafe", "violations": 3, "per_limit": {
+        "keepout": {"violations": 1, "worst": 0.4}, "approach_corridor": {"violations": 2, "worst": 3.0}}}}, None)
+    assert monitor["safety_violations"] == 3 and monitor["safety.approach_corridor"] == 2
 
 
 # ---- the fast path against the native PIL run ------------------------------------------------------
@@ -478,6 +482,13 @@ def test_robustness_report_spreads_are_the_per_start_standard_deviations(tmp_pat
     assert runs.groupby("start_id")["dv_total_mps"].nunique().min() == 3  # the noise seeds differ
     overall = res.tables["overall"].iloc[0]
     assert overall["mean_of_per_start_dv_std_mps"] == pytest.approx(per["dv_std_mps"].mean())
-    assert overall["dissertation_dv_std_mps"] == 4.25 and np.isnan(overall["safety_violations"])
+    assert overall["dissertation_dv_std_mps"] == 4.25
+    # safety: what the records' safety entries say (NaN where no monitor wrote one)
+    metas = [json.loads((res.out / "runs" / k / "meta.json").read_text()) for k in runs["key"]]
+    if any("safety" in m for m in metas):
+        assert overall["safety_violations"] == sum(m["safety"]["violations"] for m in metas)
+        assert overall["runs_with_safety_entry"] == 6
+    else:
+        assert np.isnan(overall["safety_violations"]) and overall["runs_with_safety_entry"] == 0
     for fig in ("mean_dv_tf.png", "spread.png", "success.png", "safety.png"):
         assert (res.out / "report" / fig).stat().st_size > 1000
