@@ -123,9 +123,6 @@ def resolve(mode: str, target_name: str, cpu: str | None, say=print) -> Engine:
     """Builds or finds what computes runs of this kind (may cross-compile: minutes the first time)."""
     ident = {"mode": mode, **simulator_identity()}
     if mode == "in-process":
-        from .inprocess import check_supported
-
-        check_supported()
         return Engine(mode, {**ident, "flight_sw_module": module_sha()})
     if mode == "native":
         from host_sim.pil import find_flight_executable

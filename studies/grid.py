@@ -10,6 +10,7 @@ share its run.
 from __future__ import annotations
 
 import copy
+import functools
 import hashlib
 import json
 from dataclasses import dataclass
@@ -41,6 +42,15 @@ class RunPoint:
         return {"mode": self.mode, "target": self.target, "cpu": self.cpu, "model": dict(self.model),
                 "guidance": self.guidance.to_dict(), "scenario": json.loads(self.scenario), "seed": self.seed,
                 "repeat": self.repeat}
+
+
+@functools.lru_cache(maxsize=None)
+def check_flight_options(options: tuple[str, ...]) -> None:
+    """The flight application's own check of the settings: it is built from the same options the
+    executable gets (ValueError with the flight software's message when it refuses them)."""
+    import flight_sw
+
+    flight_sw.FlightApp(["--run", "check", *options])
 
 
 def canonical(obj) -> str:
@@ -119,7 +129,7 @@ def expand(study: Study) -> list[RunPoint]:
             varied = [a for a in axes if not a.startswith("scenario.")]
             try:
                 guidance = GuidanceSettings.from_table(config.get("guidance", {}))
-                guidance.guidance_params()  # the flight software's own check of the parameters
+                check_flight_options(tuple(guidance.flight_args()))
             except ValueError as exc:
                 key = f"{where}vary" if any(a.startswith("guidance.") for a in varied) else f"{where}guidance"
                 raise StudyError(src, key, str(exc).rstrip("; ")) from None

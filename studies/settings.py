@@ -1,6 +1,6 @@
-"""Guidance settings of one run, in one place: the flight executable's command-line options (native
-and QEMU runs) and the equivalent flight_sw.GuidanceParams (in-process runs) come from the same
-values, so both paths fly the same guidance.
+"""Guidance settings of one run, in one place: the flight executable's command-line options, which
+the native and QEMU runs pass to the executable and the in-process runs to flight_sw.FlightApp (the
+same parser), so every path flies the same guidance.
 
 Names follow the flight executable (flight_sw/app/main.cpp): per phase N (--horizon), Ts_s
 (--period), lambda, los_half_angle_deg, u_max_mps (--set <phase>.<name>); solver, max_iter, tol,
@@ -85,36 +85,3 @@ class GuidanceSettings:
         for name, value in self.params:
             args += ["--set", f"{name}={float(value)!r}"]
         return args
-
-    def guidance_params(self):
-        """flight_sw.GuidanceParams with these settings applied as the flight executable applies its options."""
-        import flight_sw
-
-        p = flight_sw.GuidanceParams()
-        phases = [p.rendezvous, p.approach, p.docking]
-        for i, ph in enumerate(phases):
-            ph.N = int(self.horizon[i])
-            ph.Ts_s = float(self.period_s[i])
-        for ph in phases:
-            if self.solver is not None:
-                ph.solver_mode = self.solver
-            if self.max_iter is not None:
-                ph.solver_max_iter = int(self.max_iter)
-            if self.tol is not None:
-                ph.solver_tol = float(self.tol)
-            if self.barrier is not None:
-                ph.solver_barrier = float(self.barrier)
-        for name, value in self.params:
-            if "." in name:
-                phase, attr = name.split(".", 1)
-                setattr(getattr(p, phase), "lambda_" if attr == "lambda" else attr, float(value))
-            elif name.startswith("port_body_"):
-                port = list(p.port_body_m)
-                port["xyz".index(name[len("port_body_")])] = float(value)
-                p.port_body_m = port
-            else:
-                setattr(p, name, float(value))
-        err = p.validate()
-        if err:
-            raise ValueError(err.strip().rstrip(";"))
-        return p

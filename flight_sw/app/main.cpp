@@ -192,6 +192,20 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
 
 }  // namespace
 
+namespace rvd::app {
+// The flight executable's options as an AppConfig, for a FlightApp built in another process (the
+// pybind11 module's in-process path flies exactly what these options make the executable fly).
+AppConfig parse_options(const std::vector<std::string>& args) {
+  std::vector<std::string> storage{"rvd_flight_sw"};
+  storage.insert(storage.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (std::string& a : storage) argv.push_back(a.data());
+  bool list_only = false;
+  return parse(static_cast<int>(argv.size()), argv.data(), list_only);
+}
+}  // namespace rvd::app
+
+#ifndef RVD_APP_LIBRARY  // the pybind11 module takes the application without its main()
 int main(int argc, char** argv) {
   rvd::app::AppConfig cfg;
   bool list_only = false;
@@ -220,3 +234,4 @@ int main(int argc, char** argv) {
   }
   return 0;
 }
+#endif  // RVD_APP_LIBRARY

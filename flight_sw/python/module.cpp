@@ -7,10 +7,12 @@ namespace py = pybind11;
 void bind_solver(py::module_& m);    // bind_solver.cpp
 void bind_guidance(py::module_& m);  // bind_guidance.cpp
 void bind_link(py::module_& m);      // bind_link.cpp
+void bind_app(py::module_& m);       // bind_app.cpp
 
 PYBIND11_MODULE(flight_sw, m) {
   m.doc() = "rvd-pil flight software core: Fast MPC solver, three-phase RVD guidance, link codec";
   bind_solver(m);
   bind_guidance(m);
   bind_link(m);
+  bind_app(m);
 }
