@@ -231,7 +231,6 @@ void bind_guidance(py::module_& m) {
       .def_property_readonly("iterations", [](const Command& c) { return c.solver.iterations; })
       .def_property_readonly("solve_time_us", [](const Command& c) { return c.solver.solve_time_us; })
       .def_property_readonly("primal_residual", [](const Command& c) { return c.solver.primal_residual; })
-      .def_property_readonly("dual_residual", [](const Command& c) { return c.solver.dual_residual; })
       .def_property_readonly("objective", [](const Command& c) { return c.solver.objective; })
       .def_property_readonly("recovery_status", [](const Command& c) { return std::string(solver::to_string(c.recovery.status)); })
       .def_property_readonly("recovery_iterations", [](const Command& c) { return c.recovery.iterations; })
