@@ -289,6 +289,23 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only, std::string& k
 
 }  // namespace
 
+namespace rvd::app {
+// The flight executable's options as an AppConfig, for a FlightApp built in another process (the
+// pybind11 module's in-process path flies exactly what these options make the executable fly).
+AppConfig parse_options(const std::vector<std::string>& args) {
+  std::vector<std::string> storage{"rvd_flight_sw"};
+  storage.insert(storage.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (std::string& a : storage) argv.push_back(a.data());
+  bool list_only = false;
+  std::string key_file;
+  AppConfig cfg = parse(static_cast<int>(argv.size()), argv.data(), list_only, key_file);
+  cfg.link_key.fill(0x5a);  // in process there is no link to authenticate; any non-zero key will do
+  return cfg;
+}
+}  // namespace rvd::app
+
+#ifndef RVD_APP_LIBRARY  // the pybind11 module takes the application without its main()
 int main(int argc, char** argv) {
   rvd::app::AppConfig cfg;
   bool list_only = false;
@@ -322,3 +339,4 @@ int main(int argc, char** argv) {
   }
   return 0;
 }
+#endif  // RVD_APP_LIBRARY
