@@ -58,8 +58,9 @@ bench: build
 	$(PY) -m pip install -q -e ".[test,bench]" --no-build-isolation
 	$(PY) -m bench.solvers
 	$(PY) -m bench.link_latency
+	$(PY) -m bench.link_auth
 
-# The emulation platform on its own (issue 5): fetches the plugin header, ARM kernels and busybox
+# The emulation platform on its own: fetches the plugin header, ARM kernels and busybox
 # into build/ (python -m qemu prepare), then runs every QEMU test: user mode, plugin, system mode.
 qemu-check: venv | deps-pil
 	$(PY) -m qemu prepare

@@ -342,12 +342,11 @@ def _system_row(name: str, steps: int, download: bool, icount: bool, workdir: Pa
                 lambda args: system.command(t, img, initrd, args, icount=icount, net=False, semihosting=True),
                 workdir / f"{name}-semihosting-link")}
 
-        def flight_command(args):
-            # run_pil passes --connect tcp/127.0.0.1:PORT; inside the guest the host is 10.0.2.2.
-            args = [a.replace("tcp/127.0.0.1:", f"tcp/{system.HOST_IP}:") for a in args]
-            return system.command(t, img, initrd, args, icount=icount)
-
-        return {"flight_command": flight_command}
+        # The link over the user network (the guest reaches the host at 10.0.2.2); only the link key
+        # goes through semihosting.
+        return {"flight_command": semihosting_link.key_only_command(
+            lambda args: system.command(t, img, initrd, args, icount=icount, semihosting=True),
+            workdir / f"{name}-link-key", system.HOST_IP)}
 
     # A boot takes seconds (vexpress-a9 up to 15 s on a loaded machine): generous hello timeout.
     label = f"qemu-system {name}{' semihosting' if semihosting else ''}"

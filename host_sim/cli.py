@@ -7,7 +7,10 @@
     rvd-run case1_vbar -- --horizon 45,15,12     everything after -- goes to the flight software
 
 It starts the host's Zenoh session and the flight software, shows progress, prints a summary
-(delta-v and time per phase, docked or why not) and writes the run record (runs/<time>-<scenario>/).
+(delta-v and time per phase, docked or why not, what was dropped from the link, which settings
+depend on this host's speed) and writes the run record (runs/<time>-<scenario>/). With --ideal the
+control delay is "none" unless --delay says otherwise, so the run uses no wall-clock reading:
+three runs give the same record digest.
 """
 from __future__ import annotations
 
@@ -43,8 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-sensor-noise", action="store_true")
     ap.add_argument("--no-thrust-noise", action="store_true")
     ap.add_argument("--impulsive", action="store_true", help="apply burns as impulses instead of finite burns")
-    ap.add_argument("--delay", choices=("none", "reported", "estimated"), default="reported",
-                    help="control delay model (default: the flight computer's reported step time)")
+    ap.add_argument("--delay", choices=("none", "reported", "estimated"), default=None,
+                    help="control delay model (default: none with --ideal, else the flight computer's "
+                         "reported step time, which depends on this host's speed)")
     ap.add_argument("--realtime", type=float, metavar="SPEEDUP", default=None,
                     help="real-time pacing at SPEEDUP simulated seconds per wall second (default: lockstep)")
     ap.add_argument("--zenoh-mode", choices=("peer", "router"), default="peer", help="host Zenoh mode")
@@ -99,8 +103,9 @@ def main(argv=None) -> int:
     split = argv.index("--") if "--" in argv else len(argv)
     args = build_parser().parse_args(argv[:split])
     flight_args = argv[split + 1:]
+    delay = args.delay or ("none" if args.ideal else "reported")
     cfg = ServerConfig(mode=args.zenoh_mode, lockstep=args.realtime is None, speedup=args.realtime or 1.0,
-                       cmd_timeout_s=args.cmd_timeout, delay_model=args.delay)
+                       cmd_timeout_s=args.cmd_timeout, delay_model=delay)
     progress = Progress(args.quiet)
     from host_sim.pil import run_pil  # after argument errors, so --help stays fast
 
@@ -141,7 +146,18 @@ def main(argv=None) -> int:
     if summary.nav_resends or summary.rejected_messages or summary.late_commands:
         print(f"link: {summary.nav_resends} nav resends, {summary.late_commands} late commands, "
               f"{summary.rejected_messages} rejected messages")
-    print(f"run record: {run_dir}")
+    dropped = {**{f"host {k}": v for k, v in summary.discarded.items() if v},
+               **{f"flight {k}": v for k, v in summary.flight_discarded.items() if v and k != "nav_duplicates"}}
+    if summary.stale_commands or summary.future_commands:
+        dropped.update({"host stale cmds": summary.stale_commands, "host future cmds": summary.future_commands})
+    if dropped:
+        print("dropped inputs: " + ", ".join(f"{k} {v}" for k, v in dropped.items()))
+    if summary.invalid_commands:
+        print(f"flight faults: {summary.invalid_commands} invalid command(s), not applied (see events.csv)")
+    print("depends on this host's speed: " + "; ".join(f"{k} = {v}" for k, v in summary.host_speed_dependent.items()))
+    from host_sim.record import record_digest
+
+    print(f"run record: {run_dir} (digest without clock readings {record_digest(run_dir)[:16]})")
     return 0 if summary.docked else (130 if interrupted else 1)
 
 

@@ -6,11 +6,19 @@ starts the host's Zenoh session on a free loopback port, launches the flight exe
 behind a runner prefix such as ``qemu-arm -cpu cortex-a9``) pointed at it, serves the run in lockstep,
 writes the run record and stops the flight process. Used by the `rvd-run` command, the tests and the
 campaigns in bench/.
+
+The run's link key (a fresh random one unless the config names one) reaches the flight process in
+its environment ($RVD_LINK_KEY), which only its own user can read, never on its command line,
+which every local user can; a runner or wrapper passes the environment on (QEMU user mode does; the
+semihosting bridge of QEMU system mode turns it into a 0600 file the guest reads). The key is not
+written to the record.
 """
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import os
+import secrets
 import shlex
 import shutil
 import signal
@@ -20,6 +28,7 @@ import uuid
 from pathlib import Path
 from typing import Callable, Optional, Sequence
 
+from host_sim import messages as msg
 from host_sim.record import RunRecorder
 from host_sim.scenario import Scenario, load
 from host_sim.server import FLIGHT_COLUMNS, SAFETY_COLUMNS, PilServer, RunSummary, ServerConfig, free_tcp_port
@@ -29,10 +38,10 @@ REPO = Path(__file__).resolve().parent.parent
 FLIGHT_EXE_NAME = "rvd_flight_sw"
 
 
-def find_flight_executable(explicit: Optional[str] = None) -> Path:
+def find_flight_executable(explicit: Optional[str] = None, name: str = FLIGHT_EXE_NAME) -> Path:
     """The native flight executable: `explicit`, $RVD_FLIGHT_SW, this checkout's build/native, or PATH."""
-    candidates = [explicit, os.environ.get("RVD_FLIGHT_SW"), str(REPO / "build" / "native" / "flight_sw" / FLIGHT_EXE_NAME),
-                  shutil.which(FLIGHT_EXE_NAME)]
+    candidates = [explicit, os.environ.get("RVD_FLIGHT_SW") if name == FLIGHT_EXE_NAME else None,
+                  str(REPO / "build" / "native" / "flight_sw" / name), shutil.which(name)]
     for c in candidates:
         if c and Path(c).is_file() and os.access(c, os.X_OK):
             return Path(c)
@@ -105,7 +114,9 @@ def run_pil(
     cfg = config or ServerConfig()
     port = free_tcp_port(host_address)
     cfg.endpoint = f"tcp/{host_address}:{port}"
-    cfg.run_id = cfg.run_id if cfg.run_id != "run" else uuid.uuid4().hex[:12]
+    cfg.run_id = msg.check_run_id(cfg.run_id if cfg.run_id != "run" else uuid.uuid4().hex[:12])
+    link_key = cfg.link_key or secrets.token_bytes(msg.KEY_SIZE)  # fresh for every run unless given
+    flight_env = {**os.environ, msg.KEY_ENV: link_key.hex()}
     # --verbose: the flight software notes its events (connects, rejected input, exit) in flight_sw.log.
     # The error model the flight software's navigation filter and margins assume is the scenario's.
     args = ["--connect", flight_endpoint or cfg.endpoint, "--run", cfg.run_id, "--verbose",
@@ -119,7 +130,10 @@ def run_pil(
     run_dir = Path(run_dir) if run_dir else default_run_dir(scen.name)
     record_meta = dict(sim.record_meta())
     record_meta.update(run_id=cfg.run_id, flight_command=cmd, truth=truth, lockstep=cfg.lockstep,
-                       delay_model=cfg.delay_model, zenoh_mode=cfg.mode)
+                       delay_model=cfg.delay_model, zenoh_mode=cfg.mode,
+                       link_auth=f"HMAC-SHA-256 tag of {msg.TAG_SIZE} bytes on every message, per-run key "
+                                 f"(handed over in ${msg.KEY_ENV}, not recorded)",
+                       host_speed_dependent=cfg.host_speed_dependent())
     record_meta.update(meta or {})
     recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=FLIGHT_COLUMNS + SAFETY_COLUMNS)
     proc = None
@@ -128,12 +142,14 @@ def run_pil(
         code = None if proc is None else proc.poll()
         return None if code is None else f"exit code {code}"
 
-    server = PilServer(sim, cfg, record=recorder, on_step=on_step, flight_exited=flight_exited)
+    server = PilServer(sim, dataclasses.replace(cfg, link_key=link_key), record=recorder, on_step=on_step,
+                       flight_exited=flight_exited)
     status = "failed"
     try:
         server.link.open()
         with open(run_dir / "flight_sw.log", "wb") as log:
-            proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+            proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=flight_env)
+            recorder.update_meta(flight_pid=proc.pid)
             if on_started is not None:
                 on_started(server, proc)
             summary = server.run()
@@ -151,10 +167,15 @@ def run_pil(
             dv_per_phase_mps=s.dv_per_phase_mps, time_per_phase_s=s.time_per_phase_s,
             final_range_to_port_m=s.final_range_to_port_m, nav_resends=s.nav_resends,
             late_commands=s.late_commands, rejected_messages=s.rejected_messages,
+            stale_commands=s.stale_commands, duplicate_commands=s.duplicate_commands,
+            future_commands=s.future_commands, invalid_commands=s.invalid_commands,
+            host_discarded=s.discarded, flight_discarded=s.flight_discarded,
+            host_speed_dependent=s.host_speed_dependent or cfg.host_speed_dependent(hello),
             flight_exit_code=None if proc is None else proc.returncode,
             flight_hello=None if hello is None else {k: getattr(hello, k) for k in
                                                       ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction",
-                                                       "period_s", "solver_mode", "solver_max_iter", "session")},
+                                                       "period_s", "max_pulse_s", "solver_mode", "solver_max_iter",
+                                                       "session")},
             flight_telemetry=None if s.telemetry is None else vars(s.telemetry),
             safety=s.safety,
         )

@@ -12,6 +12,14 @@ step is logged it is in the kernel: a SIGKILL right after cannot lose it, and a 
 write can at worst leave a torn last line, which `load_run` drops. (Power loss is another matter:
 pass fsync=True to also push every line to the disk.) Floats are written with repr(), so reading
 them back with `load_run` gives the very same doubles.
+
+meta.json names the process writing the record ("writer": pid, its start time, boot id, host name).
+A record still "running" whose writer is gone (killed, crashed, the machine rebooted) is marked
+"host died" by the next `load_run` (and meta.json rewritten so), with what is known about the end.
+
+Some columns measure wall time on a clock (`TIMING_COLUMNS`: solve and step times, the link's round
+trip); everything else in a run without wall-clock-dependent settings repeats bit for bit, which
+`record_digest` checks in one number.
 """
 
 from __future__ import annotations
@@ -19,11 +27,13 @@ from __future__ import annotations
 import csv
 import datetime as _dt
 import functools
+import hashlib
 import io
 import json
 import math
 import os
 import platform
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -61,8 +71,46 @@ STEP_COLUMNS: tuple[str, ...] = tuple(
     + _state_cols("after")
 )
 EVENT_COLUMNS: tuple[str, ...] = ("wall_time_utc", "step", "t_s", "kind", "detail")
+#: Per-step columns (where present) that measure wall time on some clock, not the simulated run.
+TIMING_COLUMNS: tuple[str, ...] = ("solve_time_us", "step_time_us", "round_trip_ms")
 _RESERVED_META = {"format", "status", "created_utc", "versions", "columns", "extra_columns", "closed_utc",
-                  "steps_written"}
+                  "steps_written", "writer"}
+HOST_DIED = "host died"
+
+
+def _process_start_ticks(pid: int) -> int | None:
+    """Start time of a process in clock ticks since boot (/proc/PID/stat field 22), None if gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()  # after the command name, which may hold spaces
+    if fields[0] in ("Z", "X"):                    # a zombie has finished
+        return None
+    return int(fields[19])
+
+
+def _boot_id() -> str | None:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return None
+
+
+def writer_identity() -> dict[str, Any]:
+    """Who is writing a record: enough to tell later whether that process still runs."""
+    return {"pid": os.getpid(), "start_ticks": _process_start_ticks(os.getpid()), "boot_id": _boot_id(),
+            "hostname": socket.gethostname()}
+
+
+def writer_alive(writer: Mapping[str, Any] | None) -> bool | None:
+    """True/False when it can be told whether the process of `writer_identity()` still runs, else None
+    (no identity, or written on another machine)."""
+    if not writer or writer.get("hostname") != socket.gethostname() or writer.get("start_ticks") is None:
+        return None
+    if writer.get("boot_id") != _boot_id():
+        return False  # the machine rebooted since
+    return _process_start_ticks(int(writer["pid"])) == writer["start_ticks"]
 
 
 def _utc_now() -> str:
@@ -184,6 +232,7 @@ class RunRecorder:
             "versions": software_versions(),
             "columns": list(self.columns),
             "extra_columns": list(extra),
+            "writer": writer_identity(),
         }
         self.meta.update(given)
         _atomic_write_json(self.run_dir / "meta.json", self.meta)
@@ -297,16 +346,41 @@ def _exact_floats(pd) -> dict:
     return {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
 
 
+def _mark_if_writer_died(run_dir: Path, meta: dict) -> dict:
+    """A record left "running" by a process that no longer exists is marked HOST_DIED (meta.json
+    rewritten if it can be); one whose writer cannot be checked gets a status note instead."""
+    if meta.get("status") != "running":
+        return meta
+    alive = writer_alive(meta.get("writer"))
+    if alive:
+        return meta
+    if alive is None:
+        meta["status_note"] = ("still marked running; whether its writer lives cannot be told here "
+                               f"(written by {meta.get('writer') or 'an unknown process'})")
+        return meta
+    data, _ = _read_complete_lines(run_dir / "steps.csv")
+    meta.update(status=HOST_DIED, end=meta.get("end") or "host died",
+                host_died={"detected_utc": _utc_now(), "steps_recorded": max(data.count(b"\n") - 1, 0),
+                           "reason": f"the host process (pid {meta['writer']['pid']}) ended without closing the "
+                                     "record; every step it logged before is kept"})
+    try:
+        _atomic_write_json(run_dir / "meta.json", meta)
+    except OSError:
+        pass  # a read-only record is still reported as such
+    return meta
+
+
 def load_run(path: str | Path):
     """(meta dict, steps DataFrame) of a run directory, also of a run killed mid-way: a torn last
-    line is dropped (its size is in df.attrs["torn_tail_bytes"]). Floats read back bit-exactly."""
+    line is dropped (its size is in df.attrs["torn_tail_bytes"]). Floats read back bit-exactly. A
+    record whose host died without closing it comes back (and stays) marked HOST_DIED."""
     import pandas as pd
 
     run_dir = Path(path)
     meta_path = run_dir / "meta.json"
     if not meta_path.is_file():
         raise FileNotFoundError(f"{run_dir} is not a run directory (no meta.json)")
-    meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    meta = _mark_if_writer_died(run_dir, json.loads(meta_path.read_text(encoding="utf-8")))
     data, torn = _read_complete_lines(run_dir / "steps.csv")
     columns = meta.get("columns", list(STEP_COLUMNS))
     if data.count(b"\n") <= 1:  # no file, header only, or a torn header
@@ -329,3 +403,30 @@ def load_events(path: str | Path):
                          na_values={"step": [""], "t_s": [""]})
     df.attrs["torn_tail_bytes"] = torn
     return df
+
+
+#: meta.json fields of a finished run that do not depend on when, where or how fast it ran.
+DIGEST_META: tuple[str, ...] = ("status", "end", "docked", "steps", "t_end_s", "dv_total_mps", "dv_l1_mps",
+                                "dv_per_phase_mps", "time_per_phase_s", "final_range_to_port_m", "nav_resends",
+                                "late_commands", "rejected_messages", "invalid_commands", "scenario", "seed",
+                                "truth", "delay_model", "columns")
+
+
+def record_digest(path: str | Path) -> str:
+    """SHA-256 (hex) of what a run's record says about the run itself: steps.csv without the
+    TIMING_COLUMNS, events without their wall time, and the DIGEST_META fields of meta.json. Two
+    runs of the same scenario and settings without wall-clock-dependent ones give the same digest
+    exactly when their records are bit-identical apart from clock readings."""
+    run_dir = Path(path)
+    meta = json.loads((run_dir / "meta.json").read_text(encoding="utf-8"))
+    h = hashlib.sha256()
+    h.update(json.dumps({k: meta.get(k) for k in DIGEST_META}, sort_keys=True).encode())
+    for name, skip in (("steps.csv", TIMING_COLUMNS), ("events.csv", ("wall_time_utc",))):
+        data, _ = _read_complete_lines(run_dir / name)
+        rows = list(csv.reader(io.StringIO(data.decode("utf-8"))))
+        if not rows:
+            continue
+        keep = [i for i, c in enumerate(rows[0]) if c not in skip]
+        for row in rows:
+            h.update(("\x1f".join(row[i] for i in keep if i < len(row)) + "\n").encode())
+    return h.hexdigest()

@@ -245,25 +245,34 @@ def validate(s: Scenario, source: str = "<scenario>") -> None:
         need(getattr(sf, name) >= 0.0, f"safety {name} must be >= 0, got {getattr(sf, name)}")
 
 
-def random_scenario(seed: int, base: str | Scenario = "case1_vbar") -> Scenario:
+def random_scenario(seed: int, base: str | Scenario = "case1_vbar", *, range_m: tuple[float, float] = (150.0, 2500.0),
+                    velocity_sigma_mps: float = 0.5) -> Scenario:
     """A Monte Carlo initial state (dissertation section 5.4), everything else from `base`.
 
     Range uniform in 0.15-2.5 km; direction isotropic (uniform on the sphere; the dissertation does
     not say, and this does not favour any approach corridor); velocity = the drift-free,
     target-centred CW relative-orbit velocity at that position (host_sim.cw.drift_free_velocity)
-    + N(0, 0.5 m/s) per LVLH axis. The same seed gives the same scenario."""
+    + N(0, 0.5 m/s) per LVLH axis. The same seed gives the same scenario. `range_m` (low, high) and
+    `velocity_sigma_mps` change the dispersions; the defaults are the dissertation's."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    lo, hi = (float(v) for v in range_m)
+    if not (0.0 < lo <= hi and math.isfinite(hi)):
+        raise ValueError(f"range_m must be (low, high) with 0 < low <= high, got {range_m!r}")
+    if not (math.isfinite(float(velocity_sigma_mps)) and float(velocity_sigma_mps) >= 0.0):
+        raise ValueError(f"velocity_sigma_mps must be a finite number >= 0, got {velocity_sigma_mps!r}")
     base_scenario = load(base) if not isinstance(base, Scenario) else base
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CE7A]))
-    range_m = rng.uniform(150.0, 2500.0)
+    distance_m = rng.uniform(lo, hi)
     direction = rng.standard_normal(3)
     direction /= np.linalg.norm(direction)
-    position = range_m * direction
-    velocity = drift_free_velocity(base_scenario.orbit.mean_motion_rad_s, position) + rng.normal(0.0, 0.5, 3)
+    position = distance_m * direction
+    velocity = (drift_free_velocity(base_scenario.orbit.mean_motion_rad_s, position)
+                + rng.normal(0.0, float(velocity_sigma_mps), 3))
     chaser = dataclasses.replace(base_scenario.chaser, position_lvlh_m=tuple(float(v) for v in position),
                                  velocity_lvlh_mps=tuple(float(v) for v in velocity))
     return dataclasses.replace(
         base_scenario, name=f"random_{int(seed)}", chaser=chaser,
-        description=(f"Monte Carlo initial state, seed {int(seed)}: range {range_m:.1f} m, isotropic direction, "
-                     f"drift-free velocity + N(0, 0.5 m/s); target and vehicles as {base_scenario.name}"))
+        description=(f"Monte Carlo initial state, seed {int(seed)}: range {distance_m:.1f} m, isotropic direction, "
+                     f"drift-free velocity + N(0, {float(velocity_sigma_mps):g} m/s); target and vehicles as "
+                     f"{base_scenario.name}"))

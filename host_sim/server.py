@@ -10,6 +10,13 @@ fault ("flight software lost"), never a hang. In real-time pacing mode the serve
 period lasts `period_s / speedup` of wall time, and a command that misses it is recorded as late and
 not applied.
 
+Every message is sealed and opened with the run's key (messages.LinkAuth): what another Zenoh
+session publishes on the run's keys is dropped and counted by kind (untagged, bad tag, replayed,
+wrong run, oversized, malformed), never applied. Every command is checked against the limits the
+flight software declared in its hello (`check_cmd`: its step, the period of its phase, finite pulses
+between 0 and the phase's longest pulse, no phase going back); one that breaks them is a recorded
+flight fault that ends the run, and it is not applied.
+
 The command is applied after a control delay taken from the command itself (`delay_model`):
 "none" applies it at t_k (the dissertation's assumption), "reported" at t_k + the flight computer's
 measured guidance step time, "estimated" at t_k + instructions x CPI / f_clk of a CPU model.
@@ -18,6 +25,7 @@ from __future__ import annotations
 
 import math
 import queue
+import secrets
 import socket
 import threading
 import time
@@ -42,25 +50,45 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
         return s.getsockname()[1]
 
 
+@dataclass
+class InvalidMessage:
+    """An authentic message from the flight software whose content breaks the rules (e.g. NaN):
+    queued like a message, so that the control loop records it as a flight fault."""
+    kind: str      # "hello", "cmd", ...
+    step: int      # the step field for a cmd (read from the raw bytes), else -1
+    reason: str
+
+
+#: What the host counts when it drops a message from the link (MessageError.kind).
+DISCARD_KINDS = ("oversized", "untagged", "wrong_run", "bad_tag", "replayed", "malformed")
+
+
 class ZenohLink:
     """The host's Zenoh session for one run: publishes nav/bye, queues what the flight side sends.
 
     `mode` is "peer" or "router"; either way it listens on `endpoint` (e.g. "tcp/127.0.0.1:7447") and the
-    flight software connects to it as a Zenoh client. Messages that do not decode are counted and kept
-    (with the reason) in `rejected`, never raised into the control loop.
+    flight software connects to it as a Zenoh client. Every message goes out sealed and comes in opened
+    with `link_key` (messages.LinkAuth, the host's end); what does not open is counted by kind in
+    `discarded` and kept with the reason in `rejected` (key, kind, reason), never raised into the
+    control loop.
     """
 
     def __init__(self, run_id: str, endpoint: str, mode: str = "peer", lease_ms: int | None = None,
-                 zenoh_id: str | None = None):
+                 zenoh_id: str | None = None, link_key: bytes | None = None):
         import zenoh  # imported here so that host_sim's physics does not need Zenoh
 
         if mode not in ("peer", "router"):
             raise ValueError(f"mode must be 'peer' or 'router', not {mode!r}")
+        msg.check_run_id(run_id)
         self.run_id, self.endpoint, self.mode, self.lease_ms = run_id, endpoint, mode, lease_ms
         self.zenoh_id = zenoh_id
+        self.link_key = link_key if link_key is not None else secrets.token_bytes(msg.KEY_SIZE)
+        self.auth = msg.LinkAuth(self.link_key, run_id, "host")
         self._zenoh = zenoh
         self.inbox: "queue.Queue[tuple[float, object]]" = queue.Queue()
-        self.rejected: list[tuple[str, str]] = []
+        self.rejected: "queue.Queue[tuple[str, str, str]]" = queue.Queue()
+        self.discarded = {k: 0 for k in DISCARD_KINDS}
+        self._count_lock = threading.Lock()
         self.session = None
         self._subs = []
 
@@ -78,21 +106,35 @@ class ZenohLink:
         # indirect=False: run the (short) callback on Zenoh's receive thread. The default gives each
         # subscriber its own Python thread, which reorders messages across keys (a bye overtaking
         # the telemetry sent before it); the flight side's order is part of the protocol.
-        for kind in ("hello", "cmd", "telemetry", "bye"):
+        # allowed_origin REMOTE: the host's own bye (same key) is not delivered back to it.
+        for kind, cls in (("hello", msg.Hello), ("cmd", msg.Cmd), ("telemetry", msg.Telemetry), ("bye", msg.Bye)):
             self._subs.append(self.session.declare_subscriber(
-                msg.key(kind, self.run_id), z.handlers.Callback(self._on_sample, indirect=False)))
+                msg.key(kind, self.run_id),
+                z.handlers.Callback(lambda sample, kind=kind, cls=cls: self._on_sample(sample, kind, cls),
+                                    indirect=False),
+                allowed_origin=z.Locality.REMOTE))
 
-    def _on_sample(self, sample) -> None:
+    def _on_sample(self, sample, kind: str, cls) -> None:
         data = sample.payload.to_bytes()
         try:
-            m = msg.decode(data)
+            m = self.auth.open(data, expect=cls)
         except msg.MessageError as exc:
-            self.rejected.append((str(sample.key_expr), str(exc)))
+            if exc.kind == "invalid":  # authentic: the flight software's own fault
+                step = int.from_bytes(data[msg.HEADER_SIZE:msg.HEADER_SIZE + 4], "little") if cls is msg.Cmd else -1
+                self.inbox.put((time.monotonic(), InvalidMessage(kind, step, str(exc))))
+                return
+            with self._count_lock:
+                self.discarded[exc.kind if exc.kind in self.discarded else "malformed"] += 1
+            self.rejected.put((str(sample.key_expr), exc.kind, str(exc)))
             return
         self.inbox.put((time.monotonic(), m))
 
+    def discarded_total(self) -> int:
+        with self._count_lock:
+            return sum(self.discarded.values())
+
     def put(self, kind: str, message) -> None:
-        self.session.put(msg.key(kind, self.run_id), msg.encode(message))
+        self.session.put(msg.key(kind, self.run_id), self.auth.seal(message))
 
     def put_raw(self, kind: str, data: bytes) -> None:
         """Publish arbitrary bytes on a message key (fault-injection tests)."""
@@ -145,7 +187,30 @@ class ServerConfig:
     docking_tolerance_m: float = 0.75
     collision_radius_m: float = 0.3    # truth distance to the target CoM that counts as a collision
     max_steps: int = 100000
+    # The run's link key (KEY_SIZE bytes); None: a fresh random one. Handed to the flight software
+    # outside its command line (host_sim.pil), never written to the record.
+    link_key: bytes | None = field(default=None, repr=False)
     drop_nav: Callable[[int, int], bool] = field(default=lambda k, attempt: False)  # fault injection
+
+    def host_speed_dependent(self, hello=None) -> dict:
+        """The settings whose effect depends on how fast this host (or the emulator on it) runs,
+        each with what it changes: named in the summary and the run record."""
+        out = {}
+        if self.delay_model == "reported":
+            out["delay_model"] = "reported: each command is applied after the flight computer's measured step time"
+        elif self.delay_model == "estimated":
+            out["delay_model"] = ("estimated: instructions x CPI / f_clk, or the measured step time where no "
+                                  "instruction count came")
+        if not self.lockstep:
+            out["pacing"] = f"real time at {self.speedup:g}x: a command later than its period is not applied"
+        else:
+            out["cmd_timeout_s"] = (f"{self.cmd_timeout_s:g} s per attempt, {self.nav_retries + 1} attempts: a "
+                                    "slower flight computer is declared lost")
+        out["hello_timeout_s"] = f"{self.hello_timeout_s:g} s for the flight software to connect"
+        if hello is not None:
+            out["flight_deadline_fraction"] = (f"{hello.deadline_fraction:g} x Ts on the flight computer's clock: a "
+                                               "slower one falls back to the shifted plan or zero thrust")
+        return out
 
 
 @dataclass
@@ -163,8 +228,14 @@ class RunSummary:
     telemetry: Optional[object] = None
     nav_resends: int = 0
     late_commands: int = 0
-    rejected_messages: int = 0
-    stale_commands: int = 0
+    rejected_messages: int = 0          # messages the host dropped (sum of `discarded`)
+    stale_commands: int = 0             # cmds for an older step (duplicate_commands included)
+    duplicate_commands: int = 0         # cmds for the step just applied (the answer to a resent nav)
+    future_commands: int = 0            # cmds for a step not asked for yet
+    invalid_commands: int = 0           # authentic cmds outside the declared limits: flight faults
+    discarded: dict = field(default_factory=dict)          # host side, by kind (DISCARD_KINDS)
+    flight_discarded: dict = field(default_factory=dict)   # flight side, from its last telemetry
+    host_speed_dependent: dict = field(default_factory=dict)
     events: list = field(default_factory=list)
     safety: dict = field(default_factory=dict)    # host_sim.safety.SafetyMonitor.summary(): verdict on truth
 
@@ -174,6 +245,51 @@ class RunSummary:
             lines.append(f"{ph:<12}{self.dv_per_phase_mps.get(ph, 0.0):>15.4f}{self.time_per_phase_s.get(ph, 0.0):>12.1f}")
         lines.append(f"{'total':<12}{self.dv_total_mps:>15.4f}{self.t_s:>12.1f}")
         return "\n".join(lines)
+
+
+#: The flight software's discard counters in its telemetry (Telemetry field names).
+FLIGHT_DISCARD_FIELDS: tuple[str, ...] = (
+    "nav_rejected", "nav_duplicates", "nav_stale", "nav_future", "nav_coalesced", "rx_oversized",
+    "rx_untagged", "rx_wrong_run", "rx_bad_tag", "rx_replayed", "link_losses", "link_resyncs",
+    "link_rx_rejected", "link_rx_unmatched",
+)
+
+
+def check_cmd(cmd, hello, step: int, last_phase: int) -> Optional[str]:
+    """Why an authentic command breaks the limits the flight software declared in `hello`, or None.
+
+    Checked: the step it answers, a known phase not going back, the control period of that phase
+    (exactly as declared), every number finite, every pulse between 0 and the phase's longest
+    declared pulse (and never longer than the period)."""
+    if cmd.step != step:
+        return f"answers step {cmd.step}, not {step}"
+    if cmd.phase not in PHASE_NAMES:
+        return f"unknown phase {cmd.phase}"
+    if cmd.phase < last_phase:
+        return f"phase {PHASE_NAMES[cmd.phase]} after {PHASE_NAMES[last_phase]}"
+    i = min(cmd.phase, 3) - 1
+    period = float(hello.period_s[i])
+    values = [cmd.period_s, *cmd.pulse_s, *cmd.dv_cmd_lvlh_mps, *cmd.dv_alloc_lvlh_mps]
+    if not all(math.isfinite(v) for v in values):
+        return "NaN or Inf in the command"
+    if cmd.period_s != period:
+        return f"period_s {cmd.period_s!r} s is not the declared period {period!r} s of {PHASE_NAMES[min(cmd.phase, 3)]}"
+    cap = min(float(hello.max_pulse_s[i]), period)
+    for j, p in enumerate(cmd.pulse_s):
+        if p < 0.0:
+            return f"pulse_s[{j}] = {p!r} s is negative"
+        if p > cap * (1 + 1e-12):
+            return f"pulse_s[{j}] = {p!r} s is longer than the declared {cap!r} s"
+    return None
+
+
+def check_hello(hello) -> Optional[str]:
+    """Why a hello cannot serve as the flight software's declared limits, or None."""
+    for name in ("period_s", "max_pulse_s"):
+        v = getattr(hello, name)
+        if not all(math.isfinite(x) and x > 0 for x in v):
+            return f"{name} {tuple(v)} must be finite and positive"
+    return None
 
 
 #: Per-step columns the server adds to the run record (flight-side telemetry of each command).
@@ -221,12 +337,14 @@ class PilServer:
         exit code): the server then stops waiting at once instead of running out its timeouts."""
         self.sim, self.cfg, self.record, self.on_step = sim, config, record, on_step
         self.flight_exited = flight_exited or (lambda: None)
-        self.link = ZenohLink(config.run_id, config.endpoint, config.mode, config.zenoh_lease_ms, config.zenoh_id)
+        self.link = ZenohLink(config.run_id, config.endpoint, config.mode, config.zenoh_lease_ms, config.zenoh_id,
+                              link_key=config.link_key)
         self.summary = RunSummary(end="running", steps=0, t_s=0.0, dv_total_mps=0.0,
                                   dv_per_phase_mps={p: 0.0 for p in ("rendezvous", "approach", "docking")},
                                   time_per_phase_s={p: 0.0 for p in ("rendezvous", "approach", "docking")},
                                   docked=False, final_range_to_port_m=math.nan)
         self._stop = threading.Event()
+        self._rejection_events: dict[str, int] = {}
         sigma_w = math.sqrt(sim.scenario.thrust_error.steady_state_covariance()[0, 0])
         self.safety = SafetyMonitor(sim.scenario.safety, sim.target_state, sigma_w, on_event=self._safety_event)
 
@@ -246,16 +364,44 @@ class PilServer:
         """Ask a running run() to end after the current step (e.g. on SIGINT)."""
         self._stop.set()
 
+    # At most this many events per kind of dropped message; the rest are counted (a flood must not
+    # fill the record).
+    MAX_REJECTION_EVENTS = 50
+
+    def _log_rejections(self) -> None:
+        """Record what the link dropped since the last call (one event each, up to a cap per kind)."""
+        while True:
+            try:
+                key, kind, reason = self.link.rejected.get_nowait()
+            except queue.Empty:
+                break
+            self._rejection_events[kind] = n = self._rejection_events.get(kind, 0) + 1
+            if n <= self.MAX_REJECTION_EVENTS:
+                self.event("rejected_message", f"{kind}: {key}: {reason}")
+            elif n == self.MAX_REJECTION_EVENTS + 1:
+                self.event("rejected_message_cap", f"{kind}: more than {self.MAX_REJECTION_EVENTS}; only counted from now on")
+
     def _take(self, message):
-        """Route side messages (hello, telemetry, bye); return a Cmd or a Bye, else None."""
+        """Route side messages (hello, telemetry, bye); return a Cmd, a Bye or an InvalidMessage, else None."""
+        self._log_rejections()
         if isinstance(message, msg.Hello):
             self.summary.hello = message
             self.event("hello", f"{message.arch} {message.cpu_model} session {message.session}")
         elif isinstance(message, msg.Telemetry):
-            self.summary.telemetry = message
-        elif isinstance(message, (msg.Cmd, msg.Bye)):
+            self._take_telemetry(message)
+        elif isinstance(message, (msg.Cmd, msg.Bye, InvalidMessage)):
             return message
         return None
+
+    def _take_telemetry(self, t) -> None:
+        """Keep the newest telemetry; record what the flight software dropped since the last one."""
+        before = self.summary.flight_discarded
+        now = {f: int(getattr(t, f)) for f in FLIGHT_DISCARD_FIELDS}
+        grew = {f: v - before.get(f, 0) for f, v in now.items() if v > before.get(f, 0)}
+        if grew:
+            self.event("flight_discarded", ", ".join(f"{f} +{d}" for f, d in grew.items()))
+        self.summary.telemetry = t
+        self.summary.flight_discarded = now
 
     # After the flight process has exited, what it sent last (its bye) may still be in Zenoh's
     # receive path: wait this long with an empty inbox before calling the flight software lost.
@@ -276,10 +422,18 @@ class PilServer:
             if isinstance(m, msg.Bye):
                 self.event("flight_bye", f"reason {m.reason}: {m.text}")
                 return m
-            if isinstance(m, msg.Cmd):
-                if m.step == k:
-                    return m
-                self.summary.stale_commands += 1  # an answer to an older nav (a resend crossed it)
+            step = m.step if isinstance(m, (msg.Cmd, InvalidMessage)) else None
+            if step == k or (isinstance(m, InvalidMessage) and m.kind != "cmd"):
+                return m
+            if step is None:
+                continue
+            s = self.summary
+            if step > k:  # never asked for: counted, ignored
+                s.future_commands += 1
+                self.event("future_cmd", f"cmd for step {step} while waiting for {k}: dropped", step=k)
+            else:  # an answer to an older nav (a resend crossed it)
+                s.stale_commands += 1
+                s.duplicate_commands += step == k - 1
 
     @staticmethod
     def _nav_message(k: int, meas) -> msg.Nav:
@@ -326,11 +480,8 @@ class PilServer:
         s.t_s = self.sim.t_s
         s.final_range_to_port_m = self.sim.range_to_port_m()
         s.dv_total_mps = sum(s.dv_per_phase_mps.values())
-        s.rejected_messages = len(self.link.rejected)
         self.safety.finish()
         s.safety = self.safety.summary()
-        for key, reason in self.link.rejected:
-            self.event("rejected_message", f"{key}: {reason}")
         try:
             if self.link.session is not None:
                 self.link.put("bye", msg.Bye(reason=1 if s.docked else 0, last_step=max(s.steps - 1, 0),
@@ -342,6 +493,14 @@ class PilServer:
                         break
         finally:
             self.link.close()
+            self._log_rejections()
+            s.discarded = dict(self.link.discarded)
+            s.rejected_messages = sum(s.discarded.values())
+            s.host_speed_dependent = self.cfg.host_speed_dependent(s.hello)
+            counts = {**{f"host_{k}": v for k, v in s.discarded.items()},
+                      "host_stale_commands": s.stale_commands, "host_future_commands": s.future_commands,
+                      **{f"flight_{k}": v for k, v in s.flight_discarded.items()}}
+            self.event("discarded_inputs", ", ".join(f"{k} {v}" for k, v in counts.items()))
 
     def _exchange_lockstep(self, k: int, nav):
         """Put nav k and wait for cmd k, resending nav k on timeout. Returns (cmd or Bye or None, attempts)."""
@@ -364,7 +523,11 @@ class PilServer:
         cfg, sim, s = self.cfg, self.sim, self.summary
         deadline = time.monotonic() + cfg.hello_timeout_s
         while s.hello is None and time.monotonic() < deadline:
-            self._take(self.link.get(min(deadline - time.monotonic(), 0.2)))
+            early = self._take(self.link.get(min(deadline - time.monotonic(), 0.2)))
+            if isinstance(early, InvalidMessage):
+                s.end = f"flight fault: invalid {early.kind} ({early.reason})"
+                self.event("flight_fault", s.end)
+                return
             gone = self.flight_exited()
             if s.hello is None and gone is not None and self.inbox_empty():
                 s.end = f"flight software exited before connecting ({gone})"
@@ -373,6 +536,10 @@ class PilServer:
         if s.hello is None:
             s.end = "flight software never connected"
             self.event("fault", f"no hello from the flight software within {cfg.hello_timeout_s:g} s")
+            return
+        if (why := check_hello(s.hello)) is not None:
+            s.end = f"flight fault: invalid hello ({why})"
+            self.event("flight_fault", s.end)
             return
         last_period = float(s.hello.period_s[0])  # until a cmd says otherwise: the rendezvous period
         last_phase = 1
@@ -397,6 +564,14 @@ class PilServer:
                 s.end = f"flight software ended the run ({cmd.text})"
                 self._log_without_cmd(meas, target, truth)
                 return
+            what, why = ("command" if cmd.kind == "cmd" else cmd.kind, cmd.reason) if isinstance(cmd, InvalidMessage) \
+                else ("command", check_cmd(cmd, s.hello, k, last_phase) if isinstance(cmd, msg.Cmd) else None)
+            if why is not None:  # the flight software's own message breaks its declared limits
+                s.invalid_commands += what == "command"
+                s.end = f"flight fault: invalid {what} for step {k}: {why}"
+                self.event("flight_fault", f"invalid {what} for step {k}, not applied: {why}", step=k)
+                self._log_without_cmd(meas, target, truth)
+                return
             if cmd is None and cfg.lockstep:
                 gone = self.flight_exited()
                 s.end = "flight software lost"
@@ -413,8 +588,7 @@ class PilServer:
                                              result.dv_lvlh_mps)
                 self._log(k, meas, target, result, None, attempts, rtt_ms, margins=margins)
             else:
-                last_period = cmd.period_s
-                last_phase = cmd.phase
+                last_period, last_phase = cmd.period_s, cmd.phase
                 if cmd.phase == 4:  # the flight software declares docked: check it against the truth
                     self.safety.contact(k, sim.t_s, truth)
                     s.docked = sim.range_to_port_m() <= cfg.docking_tolerance_m

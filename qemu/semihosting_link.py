@@ -16,6 +16,14 @@ Exits with QEMU's exit status; SIGTERM and SIGINT are passed on to QEMU. When th
 TCP connection (or cannot be reached) the guest reads end-of-file, and QEMU gets --grace-s seconds
 to power off before the bridge stops it: a guest cannot reconnect through this link, and a host
 that died must not leave an emulator behind. When QEMU exits the host sees the connection close.
+
+The run's link key: the bridge takes it from its environment ($RVD_LINK_KEY, where host_sim.pil
+puts it), writes it to DIR/link-key (mode 0600, nobody else can read it) and removes it from what
+QEMU inherits. The guest reads it through semihosting (flight option --key-file semihosting/link-key)
+before it opens the link; the bridge deletes the file as soon as the guest has opened the FIFOs
+(or when QEMU exits). So the key is on no command line: not the host's, not the guest's kernel's.
+With --key-only there are no FIFOs: the guest reaches the host over QEMU's user network and only
+the key goes through semihosting.
 """
 from __future__ import annotations
 
@@ -30,6 +38,8 @@ import time
 from pathlib import Path
 
 TO_GUEST, FROM_GUEST = "to-guest", "from-guest"
+KEY_FILE = "link-key"
+GUEST_KEY_ARGS = ["--key-file", f"semihosting/{KEY_FILE}"]  # relative to QEMU's working directory
 # A fixed ZenohID for the host session of runs that must repeat bit for bit ("rvdpil"): Zenoh derives
 # the initial sequence numbers, which travel in every frame, from the two sessions' ZenohIDs.
 HOST_ZENOH_ID = "72766470696c"
@@ -42,6 +52,28 @@ def make_fifos(directory: Path) -> None:
         if path.exists():
             path.unlink()
         os.mkfifo(path, 0o600)
+
+
+def _key_env() -> str:
+    from host_sim.messages import KEY_ENV
+
+    return KEY_ENV
+
+
+def write_key_file(directory: Path, key_hex: str) -> Path:
+    """DIR/link-key with the key, readable by us alone (created 0600, never widened)."""
+    path = Path(directory) / KEY_FILE
+    path.unlink(missing_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        os.write(fd, key_hex.encode() + b"\n")
+    finally:
+        os.close(fd)
+    return path
+
+
+def remove_key_file(directory: Path) -> None:
+    (Path(directory) / KEY_FILE).unlink(missing_ok=True)
 
 
 def _open_writer(path: Path, alive) -> int | None:
@@ -81,6 +113,7 @@ def _write_all(fd: int, data: bytes) -> None:
 def bridge(directory: Path, host: str, port: int, alive, log=lambda text: None) -> None:
     """Joins the FIFOs in `directory` to TCP host:port until either side closes."""
     to_guest = _open_writer(directory / TO_GUEST, alive)
+    remove_key_file(directory)  # the guest read its key before it opened the link
     if to_guest is None:
         return
     from_guest = os.open(directory / FROM_GUEST, os.O_RDONLY)  # the guest opens it right after
@@ -128,16 +161,32 @@ def flight_command(launch, link_dir: Path):
         ports = [a[len(local):] for a in args if a.startswith(local)]
         if len(ports) != 1:
             raise ValueError(f"expected one --connect {local}PORT in {args}")
-        guest = ["semihosting/." if a.startswith(local) else a for a in args] + ["--untimed-link"]
+        guest = ["semihosting/." if a.startswith(local) else a for a in args] + ["--untimed-link", *GUEST_KEY_ARGS]
         return [sys.executable, "-m", "qemu.semihosting_link", "--connect", f"127.0.0.1:{ports[0]}",
                 "--dir", str(link_dir), "--", *launch(guest)]
 
     return command
 
 
+def key_only_command(launch, key_dir: Path, host_ip: str):
+    """A `flight_command` for QEMU system mode over its user network (the guest reaches the host at
+    `host_ip`): only the link key goes through semihosting, so `launch` must enable it."""
+    local = "tcp/127.0.0.1:"
+    key_dir = Path(key_dir).resolve()
+
+    def command(args):
+        guest = [a.replace(local, f"tcp/{host_ip}:") for a in args] + GUEST_KEY_ARGS
+        return [sys.executable, "-m", "qemu.semihosting_link", "--key-only", "--dir", str(key_dir), "--",
+                *launch(guest)]
+
+    return command
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m qemu.semihosting_link", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--connect", required=True, help="the host's TCP endpoint, HOST:PORT")
+    ap.add_argument("--connect", help="the host's TCP endpoint, HOST:PORT (not with --key-only)")
+    ap.add_argument("--key-only", action="store_true",
+                    help="no FIFOs: only hand the guest its link key (the link runs over QEMU's network)")
     ap.add_argument("--dir", required=True, help="directory for the two FIFOs (created)")
     ap.add_argument("--grace-s", type=float, default=10.0,
                     help="after the host's side closed, seconds QEMU gets to power off (default 10)")
@@ -146,8 +195,27 @@ def main(argv=None) -> int:
     command = a.qemu[1:] if a.qemu[:1] == ["--"] else a.qemu
     if not command:
         ap.error("no QEMU command after --")
-    host, _, port = a.connect.rpartition(":")
+    if bool(a.connect) == a.key_only:
+        ap.error("give --connect HOST:PORT, or --key-only")
     directory = Path(a.dir)
+    directory.mkdir(parents=True, exist_ok=True)
+    key = os.environ.pop(_key_env(), None)  # QEMU does not inherit it
+    if key:
+        write_key_file(directory, key)
+    try:
+        if a.key_only:
+            qemu = subprocess.Popen(command, cwd=directory)
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                signal.signal(sig, lambda s, f: qemu.send_signal(s))
+            rc = qemu.wait()
+            return rc if rc >= 0 else 128 - rc
+        return _bridged(a, command, directory)
+    finally:
+        remove_key_file(directory)
+
+
+def _bridged(a, command, directory: Path) -> int:
+    host, _, port = a.connect.rpartition(":")
     make_fifos(directory)
     qemu = subprocess.Popen(command, cwd=directory)
     for sig in (signal.SIGTERM, signal.SIGINT):

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host_sim.record import STEP_COLUMNS, RunRecorder, load_events, load_run
+from host_sim.record import HOST_DIED, STEP_COLUMNS, RunRecorder, load_events, load_run
 from host_sim.simulator import Simulator
 
 REPO = Path(__file__).resolve().parents[1]
@@ -70,7 +70,11 @@ def test_sigkill_midway_keeps_every_completed_step(tmp_path):
     assert child.returncode == -signal.SIGKILL
 
     meta, df = load_run(run_dir)
-    assert meta["status"] == "running"  # never closed: the reader can tell a killed run
+    # Never closed, and its writer is gone: the next read says so, on disk too.
+    assert meta["status"] == HOST_DIED
+    assert f"pid {child.pid}" in meta["host_died"]["reason"]
+    assert meta["host_died"]["steps_recorded"] == len(df)
+    assert json.loads((run_dir / "meta.json").read_text())["status"] == HOST_DIED
     assert meta["seed"] == 42 and meta["extra_columns"] == ["solve_time_us", "note"]
     assert len(df) >= last_reported + 1
     assert df["step"].tolist() == list(range(len(df)))
@@ -158,3 +162,17 @@ def test_failed_run_is_marked(tmp_path):
     assert meta["status"] == "failed" and "flight software crashed" in meta["error"]
     _, df = load_run(tmp_path / "run")
     assert len(df) == 1
+
+
+def test_a_record_whose_writer_lives_stays_running_and_one_from_elsewhere_gets_a_note(tmp_path):
+    rec = RunRecorder(tmp_path / "live", {"seed": 1})
+    assert load_run(tmp_path / "live")[0]["status"] == "running"  # this process writes it
+    rec.close()
+    assert load_run(tmp_path / "live")[0]["status"] == "finished"
+    other = RunRecorder(tmp_path / "other", {"seed": 2})
+    meta = json.loads((tmp_path / "other" / "meta.json").read_text())
+    meta["writer"]["hostname"] = "another-machine"
+    (tmp_path / "other" / "meta.json").write_text(json.dumps(meta))
+    seen = load_run(tmp_path / "other")[0]  # as if copied from another machine while running
+    assert seen["status"] == "running" and "cannot be told" in seen["status_note"]
+    other.close()

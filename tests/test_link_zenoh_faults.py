@@ -357,3 +357,68 @@ def test_reconnect_schedule_is_bounded():
         p.expect("BYE", timeout=10)
         # open() and the first retry report ConnectFailed; the second retry ends the schedule.
         assert len([line for line in p.history if "status=ConnectFailed" in line]) == 2
+
+
+# ---- corrupted streams: resynchronised by reconnecting ------------------------------------------
+
+def _resynced_and_back(peer, p, lost):
+    """After the client dropped a corrupted stream: it reconnects, and the new session works."""
+    assert lost["status"] == "LinkLost" and "stream out of step" in lost["error"], lost
+    batches_until_closed(peer)                       # the first connection's traffic, to its end
+    peer.accept()
+    peer.handshake()
+    p.expect("RECONNECTED", timeout=10)
+    peer.wait_for_bytes(b"rvd/test/nav")             # the subscriber was declared again
+    peer.send(frame(peer.next_sn(), push_put("rvd/test/nav", b"in step again")))
+    p.expect("SAMPLE", payload=b"in step again".hex())
+    return p.stats()
+
+
+def test_batches_that_never_parse_make_the_client_resynchronise():
+    with RawPeer() as peer:
+        p, _ = open_raw(peer)
+        with p:
+            for junk in (b"\x3f\xff\x00", b"\x1f\x1f\x1f\x1f", b"\xff" * 40):  # no transport message at all
+                peer.send(junk)
+            st = _resynced_and_back(peer, p, p.expect("EVENT", timeout=10))
+        assert st["resyncs"] == 1 and st["link_losses"] == 1 and st["reconnects"] == 1
+        assert st["rx_rejected"] == 3
+
+
+def test_a_corrupted_length_prefix_is_detected_by_the_stall_limit_and_resynchronised():
+    """A stray byte shifts the framing: the next length prefix is read one byte off and announces a
+    batch that never completes; with the peer silent the stall limit ends it, not the lease."""
+    with RawPeer() as peer:
+        p, _ = open_raw(peer, "--rx-stall-ms", "300")
+        with p:
+            peer.conn.sendall(b"\x07")                    # outside any batch
+            peer.send(frame(peer.next_sn(), push_put("rvd/test/nav", b"lost in the shift")))
+            lost = p.expect("EVENT", timeout=10)
+            assert "incomplete for 300 ms" in lost["error"], lost
+            st = _resynced_and_back(peer, p, lost)
+        assert st["resyncs"] == 1 and st["lease_expirations"] == 0
+        assert st["samples_rx"] == 1                       # only the one after the resync
+
+
+def test_random_byte_stream_after_a_good_handshake_ends_in_a_resync_not_a_hang():
+    rng = random.Random(4242)
+    with RawPeer() as peer:
+        p, _ = open_raw(peer, "--rx-stall-ms", "500")
+        with p:
+            peer.conn.sendall(bytes(rng.randrange(256) for _ in range(5000)))  # no framing at all
+            st = _resynced_and_back(peer, p, p.expect("EVENT", timeout=15))
+        assert st["resyncs"] == 1
+
+
+def test_a_fragmented_message_above_the_cap_is_counted_as_oversized():
+    with RawPeer() as peer:
+        p, _ = open_raw(peer, "--max-reassembled", "4096")
+        with p:
+            msg = push_put("rvd/test/nav", bytes(20000))
+            pieces = [msg[i:i + 1500] for i in range(0, len(msg), 1500)]
+            for i, piece in enumerate(pieces):
+                peer.send(fragment(peer.next_sn(), piece, more=i + 1 < len(pieces), first=i == 0))
+            peer.send(frame(peer.next_sn(), push_put("rvd/test/nav", b"small")))
+            p.expect("SAMPLE", payload=b"small".hex())
+            st = p.stats()
+        assert st["rx_oversized"] == 1 and st["rx_rejected"] == 0 and st["link_losses"] == 0

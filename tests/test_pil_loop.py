@@ -109,33 +109,39 @@ def _nav_bytes_with(field_offset: int, value: float) -> bytes:
     return bytes(raw)
 
 
-def test_malformed_short_oversized_and_nan_payloads_are_rejected_and_counted(tmp_path, flight_exe, in_process_case1):
-    good = msg.encode(msg.Nav(step=3, t_s=90.0, q_lvlh_body=(1.0, 0.0, 0.0, 0.0)))
-    bad_payloads = [
-        b"\x01\x02\x03",                                    # short
-        good[:-1],                                          # truncated
-        good + bytes(10_000),                               # oversized (fragmented by Zenoh, reassembled, rejected)
-        _nav_bytes_with(msg.HEADER_SIZE + 16, math.nan),    # NaN position
-        _nav_bytes_with(msg.HEADER_SIZE + 8, math.inf),     # Inf time
-        good[:3] + bytes([9]) + good[4:],                   # another protocol version
-        bytes(np.random.default_rng(1).integers(0, 256, 200_000, dtype=np.uint8)),  # 200 kB of noise
-    ]
+def test_malformed_short_oversized_and_unsealed_payloads_are_dropped_and_counted_by_kind(tmp_path, flight_exe,
+                                                                                          in_process_case1):
+    good = msg.encode(msg.Nav(step=3, t_s=90.0, q_lvlh_body=(1.0, 0.0, 0.0, 0.0)))  # layout right, never sealed
+    bad_payloads = {
+        "malformed": [b"\x01\x02\x03",                     # short
+                      good[:-1],                           # truncated
+                      good[:3] + bytes([9]) + good[4:]],   # another protocol version
+        "wrong_run": [_nav_bytes_with(msg.HEADER_SIZE + 16, math.nan),  # NaN position, no nonce or tag
+                      _nav_bytes_with(msg.HEADER_SIZE + 8, math.inf)],  # Inf time, no nonce or tag
+        # 10 kB arrives in one Zenoh batch and is too large for any rvd message; 200 kB of noise
+        # is fragmented by Zenoh and dropped by the flight's link layer above its 4 KiB cap.
+        "oversized": [good + bytes(10_000),
+                      bytes(np.random.default_rng(1).integers(0, 256, 200_000, dtype=np.uint8))],
+    }
 
     def inject(server, proc):
         def on_step(k, summary, cmd):
             if k == 10:
-                for p in bad_payloads:
-                    server.link.put_raw("nav", p)
-                server.link.put_raw("cmd", b"garbage on the host's own key")
+                for payloads in bad_payloads.values():
+                    for p in payloads:
+                        server.link.put_raw("nav", p)
         server.on_step = on_step
 
     summary, run_dir = _ideal_case1(tmp_path, "malformed", on_started=inject)
     assert summary.end == "docked", summary.end
-    assert summary.telemetry.nav_rejected == len(bad_payloads)
-    assert summary.rejected_messages == 1  # the garbage cmd, rejected by the host's decoder
+    t = summary.telemetry
+    assert (t.nav_rejected, t.rx_wrong_run, t.rx_oversized) == (3, 2, 2)
+    assert t.rx_bad_tag == t.rx_untagged == t.rx_replayed == 0
+    assert summary.rejected_messages == 0  # the host hears only the flight software (tests/test_pil_integrity.py)
     assert summary.dv_total_mps == pytest.approx(in_process_case1.total["dv_mps"], abs=1e-9)
     events = load_events(run_dir)
-    assert (events["kind"] == "rejected_message").sum() == 1
+    flight = " ".join(events[events["kind"] == "flight_discarded"]["detail"])
+    assert "nav_rejected +3" in flight and "rx_wrong_run +2" in flight and "rx_oversized +2" in flight
 
 
 def test_one_percent_of_nav_messages_dropped_lockstep_recovers(tmp_path, flight_exe, in_process_case1):

@@ -7,6 +7,7 @@ skipped until `python -m qemu prepare` has run, or set RVD_QEMU_FETCH=1 to let t
 """
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
@@ -143,3 +144,36 @@ def test_system_mode_in_guest_solve_times_repeat_bit_for_bit(tmp_path, name):
     assert (a[:-1] > 0).all()  # every step but the docked one solved a QP on the guest clock
     np.testing.assert_array_equal(a, b)  # bit for bit, not approximately
     np.testing.assert_array_equal(runs[0]["instructions"].to_numpy(), runs[1]["instructions"].to_numpy())
+
+
+def test_the_link_key_reaches_the_guest_as_a_0600_file_and_never_its_command_line(tmp_path):
+    """The bridge writes $RVD_LINK_KEY to DIR/link-key (0600), keeps it out of QEMU's environment,
+    and removes the file once the guest opened the link (here: a stand-in guest that reads the key
+    and reports what it saw, then opens the FIFOs the way the flight software does)."""
+    from host_sim.messages import KEY_ENV
+
+    server = socket.create_server(("127.0.0.1", 0))
+    threading.Thread(target=lambda: server.accept()[0].close(), daemon=True).start()
+    link = tmp_path / "link"
+    key = "ab" * 32
+    guest = ("import os, stat, sys, json; d = sys.argv[1]; st = os.stat(d + '/link-key'); "
+             "k = open(d + '/link-key').read().strip(); "
+             f"print(json.dumps({{'mode': stat.S_IMODE(st.st_mode), 'key_ok': k == {key!r}, "
+             f"'env': {KEY_ENV!r} in os.environ, 'argv_has_key': {key!r} in ' '.join(sys.argv)}}), flush=True); "
+             "r = os.open(d + '/to-guest', os.O_RDONLY); w = os.open(d + '/from-guest', os.O_WRONLY); "
+             "print(json.dumps({'key_file_left': os.path.exists(d + '/link-key')}), flush=True); "
+             "assert os.read(r, 1) == b''")
+    # The guest's arguments as flight_command builds them carry the key file's name, not the key.
+    args = semihosting_link.flight_command(lambda a: ["qemu", *a], link)(["--connect", "tcp/127.0.0.1:7447", "--run", "r"])
+    assert semihosting_link.GUEST_KEY_ARGS == args[-2:] and key not in " ".join(args)
+    proc = subprocess.run([sys.executable, "-m", "qemu.semihosting_link", "--connect",
+                           f"127.0.0.1:{server.getsockname()[1]}", "--dir", str(link), "--grace-s", "5", "--",
+                           sys.executable, "-c", guest, str(link)],
+                          env={**os.environ, KEY_ENV: key}, capture_output=True, text=True, timeout=60)
+    server.close()
+    seen, after = (json.loads(line) for line in proc.stdout.splitlines()[:2])
+    assert proc.returncode == 0, proc.stderr
+    assert seen == {"mode": 0o600, "key_ok": True, "env": False, "argv_has_key": False}
+    # Gone once the guest has opened the link: the bridge removes it before it opens from-guest,
+    # and the guest's open of from-guest for writing returns only once the bridge has done so.
+    assert after == {"key_file_left": False} and not (link / semihosting_link.KEY_FILE).exists()

@@ -5,7 +5,7 @@
 * ``python_zenoh`` opens a real eclipse-zenoh session in ``peer`` or ``router`` mode listening on a
   loopback port: the host side of the link.
 * ``RawPeer`` is a scripted Zenoh peer on a plain Python socket, written independently of the C++
-  codec from /work/shared/zenoh-wire-notes.md, for what a real Zenoh never sends on demand
+  codec from the Zenoh wire summary in flight_sw/link/README.md, for what a real Zenoh never sends on demand
   (malformed bytes, remote key declarations, SN gaps, silence).
 
 The probe binary is taken from $RVD_ZENOH_PROBE, else from build/native (what ``make test`` builds);

@@ -66,11 +66,23 @@ void PhaseLog::add(int i, uint32_t step, double solve_us, bool overrun, uint64_t
   instructions[i] += insns;
 }
 
+void InputCounters::count(msg::Error e) {
+  switch (e) {
+    case msg::Error::None: return;
+    case msg::Error::Oversized: ++oversized; return;
+    case msg::Error::Untagged: ++untagged; return;
+    case msg::Error::WrongRun: ++wrong_run; return;
+    case msg::Error::BadTag: ++bad_tag; return;
+    case msg::Error::Replayed: ++replayed; return;
+    default: ++malformed; return;
+  }
+}
+
 const char* to_string(ExitReason r) {
   switch (r) {
     case ExitReason::Bye: return "bye from the host";
     case ExitReason::Signal: return "signal";
-    case ExitReason::LinkLost: return "link lost";
+    case ExitReason::LinkLost: return "host lost (link down)";
     case ExitReason::Idle: return "no nav within the idle timeout";
     case ExitReason::NeverConnected: return "never connected";
   }
@@ -81,6 +93,13 @@ FlightApp::FlightApp(AppConfig config)
     : cfg_(std::move(config)),
       counter_(cfg_.markers < 0 ? kSolveMarkersByDefault : cfg_.markers == 1, cfg_.pmu_instructions) {
   if (!(cfg_.deadline_fraction > 0.0)) throw std::invalid_argument("deadline fraction must be > 0");
+  if (!msg::check_run_id(cfg_.run_id))
+    throw std::invalid_argument("run id '" + cfg_.run_id + "': 1 to " + std::to_string(msg::kRunIdMax) +
+                                " characters from A-Z a-z 0-9 _ - (no wildcards, no '/')");
+  if (cfg_.link_key == LinkKey{}) throw std::invalid_argument("no link key (all zero)");
+  if (!(cfg_.host_loss_timeout_s > 0.0)) throw std::invalid_argument("host loss timeout must be > 0");
+  auth_ = msg::LinkAuth(cfg_.link_key.data(), cfg_.link_key.size(), cfg_.run_id, msg::Role::Flight);
+  cfg_.link_key.fill(0);  // only the derived keys are kept
   if (cfg_.cpu_model.empty()) cfg_.cpu_model = build_info::kCpuModel;
   guidance_ = std::make_unique<guidance::Guidance>(cfg_.guidance);  // validates the parameters
   if (const char* err = cfg_.nav_filter.validate(); *err) throw std::invalid_argument(err);
@@ -115,6 +134,9 @@ msg::Hello FlightApp::hello(uint32_t session) const {
   h.horizon = {static_cast<uint16_t>(g.rendezvous.N), static_cast<uint16_t>(g.approach.N),
                static_cast<uint16_t>(g.docking.N)};
   h.period_s = {g.rendezvous.Ts_s, g.approach.Ts_s, g.docking.Ts_s};
+  h.max_pulse_s = {guidance::max_pulse_s(g.rendezvous.u_max_mps, g.thrusters),
+                   guidance::max_pulse_s(g.approach.u_max_mps, g.thrusters),
+                   guidance::max_pulse_s(g.docking.u_max_mps, g.thrusters)};
   h.deadline_fraction = cfg_.deadline_fraction;
   h.pid = static_cast<uint32_t>(getpid());
   h.session = session;
@@ -133,25 +155,50 @@ msg::Telemetry FlightApp::telemetry() const {
   }
   t.peak_heap_bytes = peak_heap_bytes_;
   t.max_rss_kb = max_rss_kb();
-  t.nav_rejected = nav_rejected_;
-  t.nav_duplicates = nav_duplicates_;
+  const InputCounters& d = dropped_;
+  t.nav_rejected = d.malformed;
+  t.nav_duplicates = d.duplicates;
+  t.nav_stale = d.stale;
+  t.nav_future = d.future;
+  t.nav_coalesced = d.coalesced;
+  t.rx_untagged = d.untagged;
+  t.rx_wrong_run = d.wrong_run;
+  t.rx_bad_tag = d.bad_tag;
+  t.rx_replayed = d.replayed;
+  t.rx_oversized = d.oversized;
+  if (session_) {
+    const link::ZenohStats& z = session_->stats();
+    auto u32 = [](uint64_t v) { return static_cast<uint32_t>(std::min<uint64_t>(v, UINT32_MAX)); };
+    t.rx_oversized = u32(d.oversized + z.rx_oversized);
+    t.link_losses = u32(z.link_losses);
+    t.link_resyncs = u32(z.resyncs);
+    t.link_rx_rejected = u32(z.rx_rejected);
+    t.link_rx_unmatched = u32(z.rx_unmatched);
+  }
   return t;
 }
 
 std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   const bool first = (nav.flags & 1u) != 0;
-  if (last_cmd_ && nav.step == last_cmd_->step) {  // a resend: same answer, guidance state untouched
-    ++nav_duplicates_;
+  if (last_cmd_ && nav.step == last_cmd_->step) {
+    ++dropped_.duplicates;  // a resend: same answer, guidance state untouched
     return last_cmd_;
   }
-  if (first) {  // a (re)started run
-    guidance_->reset();
+  if (first) {
+    if (nav.step != 0) {  // a run starts at step 0
+      ++dropped_.future;
+      return std::nullopt;
+    }
+    guidance_->reset();  // a (re)started run
     nav_filter_->reset();
     log_ = PhaseLog{};
     overruns_ = 0;
     last_cmd_.reset();
-  } else if (last_cmd_ && nav.step < last_cmd_->step) {
-    ++nav_stale_;  // older than what we answered: a late duplicate, nothing to do
+  } else if (!last_cmd_ || nav.step > last_cmd_->step + static_cast<uint64_t>(cfg_.max_step_ahead)) {
+    ++dropped_.future;  // nothing started yet, or far beyond the next step: never adopted
+    return std::nullopt;
+  } else if (nav.step < last_cmd_->step) {
+    ++dropped_.stale;  // older than what we answered: a late duplicate, nothing to do
     return std::nullopt;
   }
 
@@ -223,25 +270,51 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   return out;
 }
 
-void FlightApp::on_nav_bytes(const uint8_t* data, size_t size) {
+void FlightApp::receive_nav(const uint8_t* data, size_t size) {
   msg::Nav nav;
-  const msg::Error e = msg::decode(data, size, nav);
+  const msg::Error e = msg::receive(auth_, data, size, nav);
   if (e != msg::Error::None) {
-    ++nav_rejected_;
-    note("nav rejected: %s (%zu bytes)", msg::to_string(e), size);
+    note_drop("nav", e, size);
     return;
   }
+  if (have_nav_) ++dropped_.coalesced;  // the previous one was never handled
   pending_nav_ = nav;
   have_nav_ = true;
+}
+
+void FlightApp::receive_bye(const uint8_t* data, size_t size) {
+  msg::Bye b;
+  const msg::Error e = msg::receive(auth_, data, size, b);
+  if (e != msg::Error::None) {
+    note_drop("bye", e, size);
+    return;
+  }
+  bye_received_ = true;
+}
+
+void FlightApp::note_drop(const char* kind, msg::Error e, size_t size) {
+  dropped_.count(e);
+  // The first drops are logged one by one; a flood is only counted (telemetry has the totals).
+  constexpr uint32_t kLogged = 50;
+  if (++drops_noted_ <= kLogged) note("%s dropped: %s (%zu bytes)", kind, msg::to_string(e), size);
+  if (drops_noted_ == kLogged) note("further drops are only counted");
+}
+
+std::optional<msg::Nav> FlightApp::take_nav() {
+  if (!have_nav_) return std::nullopt;
+  have_nav_ = false;
+  return pending_nav_;
 }
 
 template <class M>
 void FlightApp::publish_msg(const char* kind, const M& m) {
   uint8_t buf[M::kSize];
   msg::Error e = msg::Error::None;
-  const size_t n = msg::encode(m, buf, sizeof buf, &e);
+  size_t n = msg::encode(m, buf, sizeof buf, &e);
+  if (n != 0 && M::kType == msg::Type::Cmd && cfg_.corrupt_cmd) cfg_.corrupt_cmd(buf, n);
+  if (n != 0 && (e = auth_.seal(buf, n)) != msg::Error::None) n = 0;
   if (n == 0) {
-    note("cannot encode %s: %s", kind, msg::to_string(e));
+    note("cannot send %s: %s", kind, msg::to_string(e));
     return;
   }
   const link::LinkStatus st = session_->put(key(kind), buf, n);
@@ -253,18 +326,17 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
   zc.endpoint = cfg_.endpoint;
   zc.lease_ms = cfg_.lease_ms;
   zc.untimed = cfg_.untimed_link;
+  zc.max_reassembled_bytes = 4096;  // every rvd message fits one batch: a fragmented one is oversized
   session_ = std::make_unique<link::ZenohSession>(zc);
-  session_->declare_subscriber(key("nav"), [this](const link::Sample& s) { on_nav_bytes(s.payload, s.size); });
-  session_->declare_subscriber(key("bye"), [this](const link::Sample& s) {
-    msg::Bye b;
-    if (msg::decode(s.payload, s.size, b) == msg::Error::None) bye_received_ = true;
-  });
+  session_->declare_subscriber(key("nav"), [this](const link::Sample& s) { receive_nav(s.payload, s.size); });
+  session_->declare_subscriber(key("bye"), [this](const link::Sample& s) { receive_bye(s.payload, s.size); });
   link::LinkStatus st = session_->open();
   note("connecting to %s: %s%s%s", cfg_.endpoint.c_str(), link::to_string(st),
        st == link::LinkStatus::Ok ? "" : ": ", st == link::LinkStatus::Ok ? "" : session_->last_error().c_str());
 
   const auto t_start = Clock::now();
   auto t_last_nav = Clock::now();
+  auto t_link_up = Clock::now();  // the last time the link was seen up
   uint64_t hello_for_connect = 0;
   uint32_t answered = 0;
   ExitReason reason = ExitReason::Bye;
@@ -283,10 +355,9 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
            zid.bytes[0], zid.bytes[1], zid.bytes[2], zid.bytes[3]);
     }
     st = session_->poll(cfg_.untimed_link ? -1 : 100);
-    if (have_nav_) {
-      have_nav_ = false;
+    if (auto nav = take_nav()) {
       t_last_nav = Clock::now();
-      if (auto cmd = handle_nav(pending_nav_)) {
+      if (auto cmd = handle_nav(*nav)) {
         publish_msg("cmd", *cmd);
         if (++answered % static_cast<uint32_t>(std::max(cfg_.telemetry_every, 1)) == 0)
           publish_msg("telemetry", telemetry());
@@ -301,6 +372,13 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
       break;
     }
     if (cfg_.untimed_link) continue;
+    if (session_->connected()) t_link_up = Clock::now();
+    if (hello_for_connect != 0 && seconds_since(t_link_up) > cfg_.host_loss_timeout_s) {
+      note("link down for %.1f s (limit %.1f s): %s", seconds_since(t_link_up), cfg_.host_loss_timeout_s,
+           session_->last_error().c_str());
+      reason = ExitReason::LinkLost;
+      break;
+    }
     if (hello_for_connect == 0 && seconds_since(t_start) > cfg_.connect_timeout_s) {
       reason = ExitReason::NeverConnected;
       break;
@@ -319,8 +397,11 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
     publish_msg("bye", bye);
     session_->close();
   }
-  note("exit: %s (overruns %u, nav rejected %u, duplicates %u)", to_string(reason), overruns_, nav_rejected_,
-       nav_duplicates_);
+  const InputCounters& d = dropped_;
+  note("exit: %s (overruns %u; dropped: malformed %u, duplicates %u, stale %u, future %u, coalesced %u, "
+       "oversized %u, untagged %u, wrong run %u, bad tag %u, replayed %u; link resyncs %llu)",
+       to_string(reason), overruns_, d.malformed, d.duplicates, d.stale, d.future, d.coalesced, d.oversized,
+       d.untagged, d.wrong_run, d.bad_tag, d.replayed, static_cast<unsigned long long>(session_->stats().resyncs));
   return reason;
 }
 

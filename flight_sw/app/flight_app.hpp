@@ -3,19 +3,24 @@
 // On every nav message it runs one guidance step under a deadline (a fraction of the phase's control
 // period, on the flight computer's own clock), publishes the cmd, and keeps the per-phase solve-time
 // log that it also sends as telemetry. A nav it already answered (a resend after a lost message) is
-// answered again from the cached cmd, so a resend never changes the trajectory. It leaves cleanly on
-// bye or SIGTERM, and on a link that stays lost or a host that stays silent it gives up after a bound
-// instead of waiting for ever.
+// answered again from the cached cmd, so a resend never changes the trajectory. Every message it
+// takes must carry this run's tag (msg::LinkAuth, the run's key from link_key.hpp); whatever it
+// drops (untagged, mistagged, replayed, another run's, oversized, malformed, stale, too far ahead,
+// overtaken) is counted and reported in telemetry. It leaves cleanly on the host's bye or SIGTERM,
+// and when the host is gone (link down for host_loss_timeout_s) or silent (idle_timeout_s) it gives
+// up after that bound instead of waiting for ever.
 #pragma once
 
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "flight_sw/app/link_key.hpp"
 #include "flight_sw/app/pmu_counter.hpp"
 #include "flight_sw/app/solve_marker.hpp"
 #include "flight_sw/guidance/guidance.hpp"
@@ -27,7 +32,15 @@ namespace rvd::app {
 
 struct AppConfig {
   std::string endpoint = "tcp/127.0.0.1:7447";
-  std::string run_id = "run";
+  std::string run_id = "run";      // msg::check_run_id: letters, digits, '_' and '-'
+  LinkKey link_key{};              // the run's key (link_key.hpp); all zero is refused
+  // Leave when the link to the host has been down this long (TCP closed or refused, lease expired,
+  // handshakes failing): a dead host ends the run within this bound plus one reconnect attempt in
+  // progress (at most 3 x 2 s). Not applied with untimed_link.
+  double host_loss_timeout_s = 4.0;
+  // A nav more than this many steps beyond the last one answered is dropped (counted as future),
+  // never adopted: the host numbers its steps 0, 1, 2, ... and only ever moves to the next one.
+  uint32_t max_step_ahead = 16;
   guidance::GuidanceParams guidance;
   // The navigation filter between the measurements and the guidance; its noise settings are the
   // error model's (the host passes the scenario's sensor and thrust models).
@@ -50,6 +63,18 @@ struct AppConfig {
   bool pmu_instructions = false;
   std::string cpu_model;           // reported in hello (defaults to the build's -mcpu)
   bool verbose = false;
+  // Test builds only (rvd_flight_sw_faulty): changes each encoded cmd before it is tagged, to
+  // check that the host refuses commands outside the declared limits. Empty in the flight build.
+  std::function<void(uint8_t* cmd, size_t size)> corrupt_cmd;
+};
+
+// What the flight software did not take as a new step, by reason (telemetry).
+struct InputCounters {
+  uint32_t malformed = 0;   // layout, type or NaN/Inf (Telemetry::nav_rejected)
+  uint32_t duplicates = 0;  // resends, answered again from the cached cmd
+  uint32_t stale = 0, future = 0, coalesced = 0;
+  uint32_t oversized = 0, untagged = 0, wrong_run = 0, bad_tag = 0, replayed = 0;
+  void count(msg::Error e);
 };
 
 // Per-phase solve-time log (telemetry). Index 0 rendezvous, 1 approach, 2 docking.
@@ -60,7 +85,7 @@ struct PhaseLog {
   void add(int phase_index, uint32_t step, double solve_us, bool overrun, uint64_t insns);
 };
 
-enum class ExitReason { Bye = 0, Signal = 1, LinkLost = 3, Idle = 4, NeverConnected = 5 };
+enum class ExitReason { Bye = 0, Signal = 1, LinkLost = 3, Idle = 4, NeverConnected = 5 };  // LinkLost: the host is gone
 const char* to_string(ExitReason r);
 
 // Brackets each solver call with the instruction counters and sums the counts of a step: the QEMU
@@ -92,24 +117,34 @@ class SolveCounter : public guidance::SolveObserver {
 
 class FlightApp {
  public:
-  explicit FlightApp(AppConfig config);  // throws std::invalid_argument on unusable parameters
+  explicit FlightApp(AppConfig config);  // throws std::invalid_argument on unusable parameters (run id, key, ...)
   // Runs until bye, `stop` becoming true, a permanently lost link or the idle timeout.
   ExitReason run(const std::atomic<bool>& stop);
 
-  // One nav -> one cmd, without the link (also what the tests drive).
-  // nullopt for a nav older than the last one answered (nothing to send).
+  // One nav -> one cmd, without the link (also what the tests drive). nullopt for a nav that is
+  // dropped (older than the last one answered, too far ahead, not starting a run): nothing to send.
   std::optional<msg::Cmd> handle_nav(const msg::Nav& nav);
+  // The bytes of one sample from the host, as the link delivers them: checked (LinkAuth::open,
+  // decode), counted when dropped; a nav becomes the pending one (a pending nav it replaces is
+  // counted as coalesced), a genuine bye ends the run.
+  void receive_nav(const uint8_t* data, size_t size);
+  void receive_bye(const uint8_t* data, size_t size);
+  // Takes the pending nav, if any.
+  std::optional<msg::Nav> take_nav();
+  bool bye_received() const { return bye_received_; }
+  const InputCounters& dropped() const { return dropped_; }
   const PhaseLog& log() const { return log_; }
   msg::Telemetry telemetry() const;
   msg::Hello hello(uint32_t session) const;
 
  private:
-  void on_nav_bytes(const uint8_t* data, size_t size);
   template <class M> void publish_msg(const char* kind, const M& m);
+  void note_drop(const char* kind, msg::Error e, size_t size);
   std::string key(const char* kind) const;
   void note(const char* fmt, ...) const;
 
   AppConfig cfg_;
+  msg::LinkAuth auth_;
   std::unique_ptr<guidance::Guidance> guidance_;
   std::unique_ptr<nav::NavFilter> nav_filter_;
   std::unique_ptr<link::ZenohSession> session_;
@@ -119,7 +154,9 @@ class FlightApp {
   msg::Nav pending_nav_{};
   bool have_nav_ = false;
   bool bye_received_ = false;
-  uint32_t nav_rejected_ = 0, nav_duplicates_ = 0, nav_stale_ = 0, overruns_ = 0;
+  InputCounters dropped_;
+  uint32_t drops_noted_ = 0;
+  uint32_t overruns_ = 0;
   uint64_t peak_heap_bytes_ = 0;
 };
 

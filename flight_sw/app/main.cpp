@@ -1,10 +1,14 @@
 // rvd_flight_sw: the flight software executable (native, or cross-built and run under QEMU).
 //
-//   rvd_flight_sw --connect tcp/127.0.0.1:7447 --run RUN_ID [options]
+//   RVD_LINK_KEY=<64 hex digits> rvd_flight_sw --connect tcp/127.0.0.1:7447 --run RUN_ID [options]
 //
-// Exit codes: 0 bye from the host or SIGTERM/SIGINT, 2 bad arguments, 3 link lost, 4 idle timeout,
-// 5 never connected.
+// Exit codes: 0 bye from the host or SIGTERM/SIGINT, 2 bad arguments (or no link key), 3 host lost
+// (link down for --host-loss-timeout-s), 4 idle timeout, 5 never connected.
+//
+// Built a second time as rvd_flight_sw_faulty (RVD_FAULTY_BUILD, test builds only) with --fault,
+// which corrupts the commands it sends, so that tests can check the host refuses them.
 #include <atomic>
+#include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -28,11 +32,18 @@ using rvd::guidance::PhaseParams;
 
 const char* kUsage = R"(usage: rvd_flight_sw --run RUN_ID [options]
 
+The run's link key (64 hex digits) comes from $RVD_LINK_KEY or --key-file, never the command line.
+
 Link
   --connect ENDPOINT        Zenoh endpoint of the host simulator (default tcp/127.0.0.1:7447;
                             under QEMU system mode the host is tcp/10.0.2.2:PORT, or
                             semihosting/DIR: host FIFOs, see qemu/semihosting_link.py)
+  --run RUN_ID              the run id: 1-64 characters from A-Z a-z 0-9 _ -
+  --key-file PATH           read the link key from PATH (mode 0600, ours), or from a host file
+                            through semihosting with semihosting/PATH (QEMU system mode)
   --lease-ms MS             lease announced to the host (default 20000)
+  --host-loss-timeout-s S   exit when the link to the host stays down this long (default 4; with
+                            a reconnect attempt in progress the exit comes at most 6 s later)
   --idle-timeout-s S        exit when no nav arrives for this long (default 300)
   --connect-timeout-s S     exit when the first connection does not come up (default 60)
   --untimed-link            wait for the host without time limits (QEMU system mode with
@@ -154,7 +165,31 @@ bool on_off(const std::string& v, const std::string& what) {
   throw std::invalid_argument(what + ": on or off, got '" + v + "'");
 }
 
-rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
+#ifdef RVD_FAULTY_BUILD
+// --fault KIND[@STEP]: from step STEP on (default 0), every cmd is sent with one defect.
+std::function<void(uint8_t*, size_t)> cmd_fault(const std::string& spec) {
+  const size_t at = spec.find('@');
+  const std::string kind = spec.substr(0, at);
+  const uint32_t from = at == std::string::npos ? 0 : static_cast<uint32_t>(std::stoul(spec.substr(at + 1)));
+  using rvd::msg::kHeaderSize;
+  const size_t period = kHeaderSize + 8, pulse0 = kHeaderSize + 16 + 6 * 8;  // Cmd layout (schema)
+  auto put = [](uint8_t* p, double v) { rvd::msg::wire::put(p, v); };
+  std::function<void(uint8_t*)> f;
+  if (kind == "zero-period") f = [=](uint8_t* m) { put(m + period, 0.0); };
+  else if (kind == "wrong-period") f = [=](uint8_t* m) { put(m + period, 7.0); };
+  else if (kind == "negative-pulse") f = [=](uint8_t* m) { put(m + pulse0 + 8 * 2, -0.5); };
+  else if (kind == "oversized-pulse") f = [=](uint8_t* m) { put(m + pulse0, 30.0); };
+  else if (kind == "nan") f = [=](uint8_t* m) { put(m + pulse0 + 8, std::nan("")); };
+  else if (kind == "future-step") f = [=](uint8_t* m) { uint8_t* p = m + kHeaderSize; rvd::msg::wire::put<uint32_t>(p, 1000000); };
+  else throw std::invalid_argument("--fault: zero-period, wrong-period, negative-pulse, oversized-pulse, nan or future-step");
+  return [=](uint8_t* m, size_t) {
+    const uint8_t* p = m + kHeaderSize;
+    if (rvd::msg::wire::get<uint32_t>(p) >= from) f(m);
+  };
+}
+#endif
+
+rvd::app::AppConfig parse(int argc, char** argv, bool& list_only, std::string& key_file) {
   rvd::app::AppConfig cfg;
   auto params = scalar_params();
   bool have_run = false;
@@ -169,6 +204,11 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
     };
     if (a == "--connect") cfg.endpoint = value();
     else if (a == "--run") { cfg.run_id = value(); have_run = true; }
+    else if (a == "--key-file") key_file = value();
+    else if (a == "--host-loss-timeout-s") cfg.host_loss_timeout_s = parse_double(value(), a);
+#ifdef RVD_FAULTY_BUILD
+    else if (a == "--fault") cfg.corrupt_cmd = cmd_fault(value());
+#endif
     else if (a == "--lease-ms") cfg.lease_ms = static_cast<uint32_t>(parse_double(value(), a));
     else if (a == "--idle-timeout-s") cfg.idle_timeout_s = parse_double(value(), a);
     else if (a == "--connect-timeout-s") cfg.connect_timeout_s = parse_double(value(), a);
@@ -241,21 +281,46 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only) {
     return cfg;
   }
   if (!have_run) throw std::invalid_argument("--run RUN_ID is required");
+  if (!rvd::msg::check_run_id(cfg.run_id))
+    throw std::invalid_argument("--run '" + cfg.run_id + "': 1 to " + std::to_string(rvd::msg::kRunIdMax) +
+                                " characters from A-Z a-z 0-9 _ - (no wildcards, no '/', not empty)");
   return cfg;
 }
 
 }  // namespace
 
+namespace rvd::app {
+// The flight executable's options as an AppConfig, for a FlightApp built in another process (the
+// pybind11 module's in-process path flies exactly what these options make the executable fly).
+AppConfig parse_options(const std::vector<std::string>& args) {
+  std::vector<std::string> storage{"rvd_flight_sw"};
+  storage.insert(storage.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (std::string& a : storage) argv.push_back(a.data());
+  bool list_only = false;
+  std::string key_file;
+  AppConfig cfg = parse(static_cast<int>(argv.size()), argv.data(), list_only, key_file);
+  cfg.link_key.fill(0x5a);  // in process there is no link to authenticate; any non-zero key will do
+  return cfg;
+}
+}  // namespace rvd::app
+
+#ifndef RVD_APP_LIBRARY  // the pybind11 module takes the application without its main()
 int main(int argc, char** argv) {
   rvd::app::AppConfig cfg;
   bool list_only = false;
+  std::string key_file, key_error;
   try {
-    cfg = parse(argc, argv, list_only);
+    cfg = parse(argc, argv, list_only, key_file);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "rvd_flight_sw: %s\n\n%s", e.what(), kUsage);
     return 2;
   }
   if (list_only) return 0;
+  if (!rvd::app::load_link_key(key_file, cfg.link_key, key_error)) {
+    std::fprintf(stderr, "rvd_flight_sw: %s\n", key_error.c_str());
+    return 2;
+  }
   std::signal(SIGTERM, on_signal);
   std::signal(SIGINT, on_signal);
   std::signal(SIGPIPE, SIG_IGN);  // a peer that vanished is a link status, not a crash
@@ -274,3 +339,4 @@ int main(int argc, char** argv) {
   }
   return 0;
 }
+#endif  // RVD_APP_LIBRARY

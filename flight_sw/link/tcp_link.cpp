@@ -10,6 +10,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
@@ -231,7 +232,7 @@ LinkStatus TcpLink::send_batch(uint8_t* frame, size_t size, int timeout_ms, std:
 }
 
 LinkStatus TcpLink::receive_batch(const uint8_t*& data, size_t& size, int timeout_ms,
-                                  std::string* error) {
+                                  std::string* error, int stall_ms) {
   if (!is_open()) return LinkStatus::NotConnected;
   const Clock::time_point deadline = deadline_in(timeout_ms);
   for (;;) {
@@ -242,6 +243,7 @@ LinkStatus TcpLink::receive_batch(const uint8_t*& data, size_t& size, int timeou
         data = rx_.data() + rx_begin_ + kPrefixSize;
         size = len;
         rx_begin_ += kPrefixSize + len;
+        if (rx_begin_ < rx_end_) pending_since_ = Clock::now();  // the next batch has begun
         return LinkStatus::Ok;
       }
     }
@@ -265,6 +267,7 @@ LinkStatus TcpLink::receive_batch(const uint8_t*& data, size_t& size, int timeou
       n = ::recv(fd_, rx_.data() + rx_end_, rx_.size() - rx_end_, 0);
     }
     if (n > 0) {
+      if (have == 0) pending_since_ = Clock::now();
       rx_end_ += static_cast<size_t>(n);
       continue;
     }
@@ -285,7 +288,11 @@ LinkStatus TcpLink::receive_batch(const uint8_t*& data, size_t& size, int timeou
       close();
       return LinkStatus::LinkLost;
     }
-    const int w = wait_fd(fd_, POLLIN, deadline);
+    // A batch that has begun must not keep the caller waiting past its stall limit.
+    const Clock::time_point until = (stall_ms >= 0 && have > 0)
+                                        ? std::min(deadline, pending_since_ + std::chrono::milliseconds(stall_ms))
+                                        : deadline;
+    const int w = wait_fd(fd_, POLLIN, until);
     if (w == 0) return LinkStatus::Timeout;
     if (w < 0) {
       set_error(error, errno_text("poll"));

@@ -1,5 +1,5 @@
 // The TCP layer under the Zenoh session: connect with a timeout, TCP_NODELAY, length-prefixed
-// batches (u16 little-endian length, then the batch: zenoh-wire-notes.md §3), non-blocking socket
+// batches (u16 little-endian length, then the batch: see flight_sw/link/README.md), non-blocking socket
 // with poll()-based waits. The same byte stream can also run through ARM semihosting
 // ("semihosting/<host dir>": two FIFOs on the host, <dir>/to-guest and <dir>/from-guest, that
 // qemu/semihosting_link.py joins to the host's TCP endpoint), for QEMU system-mode runs whose guest
@@ -8,6 +8,7 @@
 // The receive buffer is allocated once.
 #pragma once
 
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <string>
@@ -65,16 +66,23 @@ class TcpLink {
   // Waits up to timeout_ms (0 = only what is already there; negative = without limit; semihosting:
   // any nonzero timeout waits without limit) for one whole batch. On Ok, `data`
   // and `size` view it inside the link's buffer until the next receive_batch() or connect().
-  LinkStatus receive_batch(const uint8_t*& data, size_t& size, int timeout_ms, std::string* error);
+  // stall_ms >= 0 also ends the wait (Timeout) once a batch has been incomplete for that long
+  // (pending_since()), so that the caller can tell a corrupted length from a quiet link.
+  LinkStatus receive_batch(const uint8_t*& data, size_t& size, int timeout_ms, std::string* error,
+                           int stall_ms = -1);
 
   void close();
   bool is_open() const { return fd_ >= 0 || semihosting_rx_ >= 0; }
+  // Bytes received but not yet handed out as a whole batch (a batch still arriving), and since when.
+  size_t pending_bytes() const { return rx_end_ - rx_begin_; }
+  std::chrono::steady_clock::time_point pending_since() const { return pending_since_; }
 
  private:
   int fd_ = -1;
   long semihosting_rx_ = -1, semihosting_tx_ = -1;  // host handles of to-guest and from-guest
   std::vector<uint8_t> rx_;  // two maximal batches, so one recv() can fetch several batches
   size_t rx_begin_ = 0, rx_end_ = 0;
+  std::chrono::steady_clock::time_point pending_since_{};
 };
 
 }  // namespace rvd::link

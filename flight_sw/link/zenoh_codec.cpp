@@ -1,4 +1,4 @@
-// Zenoh 1.x wire codec (see zenoh_codec.hpp). Field layouts: zenoh-wire-notes.md §1-§8.
+// Zenoh 1.x wire codec (see zenoh_codec.hpp). Field layouts: flight_sw/link/README.md, Zenoh wire summary §1-§8.
 #include "flight_sw/link/zenoh_codec.hpp"
 
 #include <cstring>

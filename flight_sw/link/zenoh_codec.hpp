@@ -1,7 +1,7 @@
 // Zenoh 1.x wire codec: pure functions on byte buffers, no I/O, no allocation.
 //
-// Written from /work/shared/zenoh-wire-notes.md (section numbers below refer to it). Three layers,
-// each with the header byte [F3 F2 F1 | MID]:
+// Written from the Zenoh wire summary in flight_sw/link/README.md (section numbers below refer
+// to it). Three layers, each with the header byte [F3 F2 F1 | MID]:
 //   transport messages (MID 0x00..0x07) inside TCP batches,
 //   network messages   (MID 0x19..0x1F) inside Frames (or a reassembled Fragment chain),
 //   data messages      (Put/Del/Query/Reply/Err) inside network messages.

@@ -1,5 +1,5 @@
-// The flight-side Zenoh client session (see zenoh_session.hpp). Section numbers refer to
-// /work/shared/zenoh-wire-notes.md.
+// The flight-side Zenoh client session (see zenoh_session.hpp). Section numbers (§) refer to the
+// Zenoh wire summary in flight_sw/link/README.md.
 #include "flight_sw/link/zenoh_session.hpp"
 
 #include <sys/random.h>
@@ -90,15 +90,28 @@ struct HandshakeHandler : BatchHandler {
 class ZenohSession::Dispatcher : public BatchHandler {
  public:
   explicit Dispatcher(ZenohSession& s) : s_(s) {}
-  void on_init(const InitMsg&) override { s_.reject("Init received on an open session"); }
-  void on_open(const OpenMsg&) override { s_.reject("Open received on an open session"); }
+  int parsed = 0;  // transport messages of the batch that decoded (whatever their content)
+  void on_oam() override { ++parsed; }
+  void on_init(const InitMsg&) override {
+    ++parsed;
+    s_.reject("Init received on an open session");
+  }
+  void on_open(const OpenMsg&) override {
+    ++parsed;
+    s_.reject("Open received on an open session");
+  }
   void on_close(const CloseMsg& m) override {
+    ++parsed;
     s_.lost(LinkStatus::LinkLost, std::string("remote sent Close(reason ") +
                                       std::to_string(m.reason) +
                                       (m.whole_session ? ", session)" : ", link)"));
   }
-  void on_keep_alive() override { ++s_.stats_.keepalives_rx; }
+  void on_keep_alive() override {
+    ++parsed;
+    ++s_.stats_.keepalives_rx;
+  }
   bool on_frame(const FrameHeader& f) override {
+    ++parsed;
     ++s_.stats_.frames_rx;
     Channel& c = f.reliable ? s_.rx_reliable_ : s_.rx_best_effort_;
     if (!sn_precedes(c.last_sn, f.sn, s_.info_.sn_mask)) {  // a duplicate or stale frame (§6)
@@ -109,7 +122,10 @@ class ZenohSession::Dispatcher : public BatchHandler {
     return true;
   }
   void on_network(const NetworkMsg& m) override { s_.handle_network(m); }
-  void on_fragment(const FragmentMsg& f) override { s_.handle_fragment(f); }
+  void on_fragment(const FragmentMsg& f) override {
+    ++parsed;
+    s_.handle_fragment(f);
+  }
   bool stop() const override { return s_.state_ != State::Connected; }
 
  private:
@@ -140,6 +156,8 @@ const char* ZenohSession::check_config() const {
   if (config_.reconnect.first_delay_ms < 0 || config_.reconnect.max_delay_ms < 0 ||
       config_.reconnect.max_attempts < 0)
     return "reconnect delays and max_attempts must not be negative";
+  if (config_.resync_after_unparsed < 1 || config_.rx_stall_ms <= 0)
+    return "resync_after_unparsed and rx_stall_ms must be positive";
   return nullptr;
 }
 
@@ -279,6 +297,7 @@ LinkStatus ZenohSession::connect_and_handshake() {
   remote_keyexprs_.clear();
   state_ = State::Connected;
   last_rx_ = last_tx_ = Clock::now();
+  unparsed_in_row_ = 0;
   ++stats_.connects;
 
   // Declarations first, then whatever followed the OpenAck in its batch.
@@ -595,9 +614,9 @@ LinkStatus ZenohSession::poll(int timeout_ms) {
     const uint8_t* data = nullptr;
     size_t size = 0;
     std::string err;
-    const LinkStatus s = link_.receive_batch(data, size, wait, &err);
+    const int stall_ms = config_.untimed ? -1 : config_.rx_stall_ms;
+    const LinkStatus s = link_.receive_batch(data, size, wait, &err, stall_ms);
     if (s == LinkStatus::Ok) {
-      last_rx_ = Clock::now();
       handle_batch(data, size);
       if (state_ == State::Closed) return LinkStatus::Ok;  // close() requested by a callback
       if (state_ != State::Connected) return LinkStatus::LinkLost;
@@ -605,9 +624,14 @@ LinkStatus ZenohSession::poll(int timeout_ms) {
       continue;
     }
     if (s != LinkStatus::Timeout) return lost(LinkStatus::LinkLost, err);
+    const Clock::time_point now = Clock::now();
+    if (stall_ms >= 0 && link_.pending_bytes() > 0 &&
+        now - link_.pending_since() >= std::chrono::milliseconds(stall_ms)) {  // a batch that never completes
+      return resync("a batch stayed incomplete for " + std::to_string(stall_ms) + " ms (" +
+                    std::to_string(link_.pending_bytes()) + " bytes pending): corrupted length or stalled peer");
+    }
     if (got) return LinkStatus::Ok;
     if (unlimited && config_.untimed) return LinkStatus::Timeout;  // a signal interrupted the wait
-    const Clock::time_point now = Clock::now();
     if (!config_.untimed && now - last_rx_ >= remote_lease) {  // checked only after the socket was drained
       return lost(LinkStatus::LeaseExpired, "nothing received from the remote for its lease of " +
                                                 std::to_string(info_.remote_lease_ms) + " ms");
@@ -640,13 +664,25 @@ void ZenohSession::reject(const char* what) {
   last_error_ = what;
 }
 
+LinkStatus ZenohSession::resync(const std::string& why) {
+  if (state_ != State::Connected) return LinkStatus::LinkLost;
+  ++stats_.resyncs;
+  return lost(LinkStatus::LinkLost, "stream out of step, reconnecting: " + why);
+}
+
 void ZenohSession::handle_batch(const uint8_t* data, size_t size) {
   ++stats_.batches_rx;
   stats_.bytes_rx += size;
   Dispatcher d(*this);
-  // A malformed message ends its batch (its length is unknown); the TCP framing stays in step.
-  if (const char* e = decode_batch(data, size, d)) {
-    if (state_ == State::Connected) reject(e);
+  // A malformed message ends its batch (its length is unknown). Normally the TCP framing stays in
+  // step; when batch after batch holds not one transport message, it is not: resynchronise.
+  const char* e = decode_batch(data, size, d);
+  if (e && state_ == State::Connected) reject(e);
+  if (d.parsed > 0) {
+    last_rx_ = Clock::now();
+    unparsed_in_row_ = 0;
+  } else if (e && ++unparsed_in_row_ >= config_.resync_after_unparsed) {
+    resync(std::to_string(unparsed_in_row_) + " batches in a row without a transport message (last: " + e + ")");
   }
   if (close_requested_) close();
 }
@@ -720,8 +756,10 @@ void ZenohSession::handle_push(const NetworkMsg& m) {
   sample.has_encoding = d.has_encoding;
   sample.encoding = d.encoding;
   in_callback_ = true;
+  bool matched = false;
   for (const Subscriber& sub : subscribers_) {
     if (!keyexpr_matches(sub.key, sample.key)) continue;
+    matched = true;
     try {
       sub.callback(sample);
     } catch (...) {  // a throwing callback must not take the link loop down with it
@@ -730,6 +768,7 @@ void ZenohSession::handle_push(const NetworkMsg& m) {
     }
   }
   in_callback_ = false;
+  if (!matched) ++stats_.rx_unmatched;  // e.g. a put on a wildcard key that intersects ours
 }
 
 void ZenohSession::handle_declare(const NetworkMsg& m) {
@@ -811,7 +850,9 @@ void ZenohSession::handle_fragment(const FragmentMsg& f) {
   if (f.more) return;
   r.active = false;
   if (r.overflow) {
-    reject("fragmented message larger than max_reassembled_bytes");
+    ++stats_.rx_oversized;
+    last_error_ = "fragmented message larger than max_reassembled_bytes (" +
+                  std::to_string(config_.max_reassembled_bytes) + " bytes), dropped";
     return;
   }
   ++stats_.reassembled_rx;

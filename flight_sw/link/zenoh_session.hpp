@@ -1,5 +1,5 @@
-// The flight-side Zenoh client session (client mode, TCP unicast), written from
-// /work/shared/zenoh-wire-notes.md and tested against eclipse-zenoh 1.10.2.
+// The flight-side Zenoh client session (client mode, TCP unicast), written from the Zenoh wire
+// notes summarised in flight_sw/link/README.md and tested against eclipse-zenoh 1.10.2.
 //
 // Single-threaded and poll-driven, like zenoh-pico without its background tasks: the application
 // calls poll(timeout) (or poll_until), which reads batches, dispatches samples to subscriber
@@ -14,6 +14,8 @@
 //  * Sends are never fragmented: a put whose encoded message exceeds the negotiated batch size is
 //    rejected with MessageTooLarge (max_put_payload() tells the room for a key).
 //  * Received fragmented messages are reassembled up to ZenohConfig::max_reassembled_bytes.
+//  * A stream that stops parsing (resync_after_unparsed batches in a row without one transport
+//    message, or a batch left incomplete for rx_stall_ms) is dropped and reconnected: a resync.
 //  * Subscriber callbacks run inside poll(); they may call put(), nothing else on this session
 //    (poll, declare, undeclare return Busy; close() is deferred to the end of the callback).
 //    An exception thrown by a callback is caught and counted, never propagated.
@@ -49,6 +51,12 @@ struct ZenohConfig {
   int connect_timeout_ms = 2000;   // TCP connect, and the wait for each handshake reply
   int send_timeout_ms = 2000;      // a batch not written in this time is reported (see TcpLink)
   size_t max_reassembled_bytes = 1u << 20;  // cap for one fragmented message from the remote
+  // Corrupted framing: after this many consecutive batches in which not one transport message
+  // parses, the byte stream is taken to be out of step and the link is dropped (and reconnected).
+  int resync_after_unparsed = 3;
+  // A batch whose length prefix has arrived but whose bytes have not all come within this time
+  // means a corrupted length (or a stalled peer): the link is dropped. Not applied when untimed.
+  int rx_stall_ms = 2000;
   ReconnectPolicy reconnect;
   // Wait for the remote without time limits: connect, handshake and sends take as long as they
   // take, poll(-1) waits until traffic arrives, the remote's lease is not enforced. For QEMU
@@ -97,6 +105,9 @@ struct ZenohStats {
   uint64_t keepalives_rx = 0, keepalives_tx = 0;
   uint64_t rx_sender_mapped = 0, rx_receiver_mapped = 0;  // pushes keyed by a declared id
   uint64_t rx_rejected = 0;    // malformed batches, unknown key ids, broken fragment chains, ...
+  uint64_t rx_oversized = 0;   // fragmented messages larger than max_reassembled_bytes, dropped
+  uint64_t rx_unmatched = 0;   // samples whose key none of our subscriptions includes, dropped
+  uint64_t resyncs = 0;        // links dropped because the byte stream no longer parsed (also link_losses)
   uint64_t rx_sn_dropped = 0;  // frames whose SN is not newer than the last one (duplicates)
   uint64_t requests_answered = 0, interests_answered = 0;
   uint64_t callback_exceptions = 0;  // exceptions caught from subscriber callbacks
@@ -199,6 +210,7 @@ class ZenohSession {
   LinkStatus send_declaration(const zenoh::Writer& w);  // send_frame, a stall drops the link
   LinkStatus send_batch(size_t batch_bytes);
   LinkStatus lost(LinkStatus why, const std::string& detail);
+  LinkStatus resync(const std::string& why);  // lost() for a stream out of step, counted in resyncs
   void schedule_retry();
   void reject(const char* what);
   void handle_batch(const uint8_t* data, size_t size);
@@ -233,8 +245,9 @@ class ZenohSession {
   uint32_t next_subscriber_id_ = 1;
   std::string key_scratch_;  // key = declared prefix + suffix, reused
 
-  // Timers.
+  // Timers; last_rx_ moves only for batches that parse (garbage does not hold the lease).
   Clock::time_point last_rx_{}, last_tx_{};
+  int unparsed_in_row_ = 0;  // batches in a row in which no transport message parsed
   Clock::time_point next_attempt_{};
   int attempts_ = 0;
   int next_delay_ms_ = 0;

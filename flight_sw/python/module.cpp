@@ -8,6 +8,7 @@ void bind_solver(py::module_& m);    // bind_solver.cpp
 void bind_guidance(py::module_& m);  // bind_guidance.cpp
 void bind_link(py::module_& m);      // bind_link.cpp
 void bind_nav(py::module_& m);       // bind_nav.cpp
+void bind_app(py::module_& m);       // bind_app.cpp
 
 PYBIND11_MODULE(flight_sw, m) {
   m.doc() = "rvd-pil flight software core: Fast MPC solver, three-phase RVD guidance, link codec, navigation filter";
@@ -15,4 +16,5 @@ PYBIND11_MODULE(flight_sw, m) {
   bind_guidance(m);
   bind_link(m);
   bind_nav(m);
+  bind_app(m);
 }

@@ -1,5 +1,5 @@
-// Zenoh wire codec against the byte vectors captured from eclipse-zenoh 1.10.2 in
-// /work/shared/zenoh-wire-notes.md (section numbers refer to it), plus a decoder fuzz.
+// Zenoh wire codec against byte vectors captured from eclipse-zenoh 1.10.2 (layouts: the Zenoh wire
+// summary of flight_sw/link/README.md; section numbers refer to it), plus a decoder fuzz.
 #include <doctest/doctest.h>
 
 #include <cstring>

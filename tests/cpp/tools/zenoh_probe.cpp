@@ -13,6 +13,8 @@
 //     --batch N           batch size proposed in InitSyn (default 65535)
 //     --no-reconnect      report a lost link and stop instead of reconnecting
 //     --reconnect-max N   give up after N failed attempts (default 30)
+//     --max-reassembled N cap for one fragmented message (default 1 MiB)
+//     --rx-stall-ms N     drop the link when a batch stays incomplete this long (default 2000)
 //     --print-payload     add the payload in hex to SAMPLE lines
 //     --quiet             no SAMPLE lines (the counts are in STATS)
 //     --check-seq         payloads are u64 little-endian counters: count gaps and repeats
@@ -121,6 +123,10 @@ Options parse(int argc, char** argv) {
       o.config.reconnect.enabled = false;
     } else if (a == "--reconnect-max") {
       o.config.reconnect.max_attempts = static_cast<int>(number(value(), "bad --reconnect-max"));
+    } else if (a == "--max-reassembled") {
+      o.config.max_reassembled_bytes = static_cast<size_t>(number(value(), "bad --max-reassembled"));
+    } else if (a == "--rx-stall-ms") {
+      o.config.rx_stall_ms = static_cast<int>(number(value(), "bad --rx-stall-ms"));
     } else if (a == "--print-payload") {
       o.print_payload = true;
     } else if (a == "--quiet") {
@@ -162,7 +168,7 @@ void print_stats(const ZenohSession& z, long seq_errors) {
       "batches_rx=%llu batches_tx=%llu frames_rx=%llu frames_tx=%llu fragments_rx=%llu "
       "reassembled_rx=%llu samples_rx=%llu puts_tx=%llu keepalives_rx=%llu keepalives_tx=%llu "
       "rx_sender_mapped=%llu rx_receiver_mapped=%llu rx_rejected=%llu rx_sn_dropped=%llu "
-      "requests_answered=%llu seq_errors=%ld last_error=\"%s\"\n",
+      "rx_oversized=%llu rx_unmatched=%llu resyncs=%llu requests_answered=%llu seq_errors=%ld last_error=\"%s\"\n",
       (unsigned long long)s.connects, (unsigned long long)s.reconnects,
       (unsigned long long)s.link_losses, (unsigned long long)s.lease_expirations,
       (unsigned long long)s.batches_rx, (unsigned long long)s.batches_tx,
@@ -172,6 +178,7 @@ void print_stats(const ZenohSession& z, long seq_errors) {
       (unsigned long long)s.keepalives_rx, (unsigned long long)s.keepalives_tx,
       (unsigned long long)s.rx_sender_mapped, (unsigned long long)s.rx_receiver_mapped,
       (unsigned long long)s.rx_rejected, (unsigned long long)s.rx_sn_dropped,
+      (unsigned long long)s.rx_oversized, (unsigned long long)s.rx_unmatched, (unsigned long long)s.resyncs,
       (unsigned long long)s.requests_answered, seq_errors, z.last_error().c_str());
   std::fflush(stdout);
 }

@@ -1,0 +1,68 @@
+// Python binding of the flight application's per-message logic (flight_sw/app): a FlightApp built
+// from the flight executable's own options, fed encoded nav messages, answering encoded cmd
+// messages, without a link. The in-process path of the studies (studies/inprocess.py) serves it
+// from the host simulator, so it flies what the executable flies, message for message.
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "flight_sw/app/flight_app.hpp"
+#include "flight_sw/link/messages.hpp"
+
+namespace py = pybind11;
+using rvd::app::FlightApp;
+namespace msg = rvd::msg;
+
+namespace rvd::app {
+AppConfig parse_options(const std::vector<std::string>& args);  // main.cpp
+}
+
+namespace {
+
+template <class M>
+py::bytes encoded(const M& m) {
+  uint8_t buf[M::kSize];
+  msg::Error e = msg::Error::None;
+  const size_t n = msg::encode(m, buf, sizeof buf, &e);
+  if (n == 0) throw py::value_error(std::string("cannot encode: ") + msg::to_string(e));
+  return py::bytes(reinterpret_cast<const char*>(buf), n);
+}
+
+}  // namespace
+
+void bind_app(py::module_& m) {
+  py::class_<FlightApp>(m, "FlightApp",
+                        "The flight application without its link: FlightApp(options) takes the flight "
+                        "executable's command-line options (e.g. ['--run', 'r1', '--horizon', '45,15,12']).")
+      .def(py::init([](const std::vector<std::string>& args) {
+             try {
+               return new FlightApp(rvd::app::parse_options(args));
+             } catch (const std::invalid_argument& e) {
+               throw py::value_error(e.what());
+             }
+           }),
+           py::arg("options"))
+      .def(
+          "handle_nav",
+          [](FlightApp& app, const py::bytes& nav) -> py::object {
+            const std::string data = nav;
+            msg::Nav n;
+            const msg::Error e = msg::decode(reinterpret_cast<const uint8_t*>(data.data()), data.size(), n);
+            if (e != msg::Error::None) throw py::value_error(std::string("nav: ") + msg::to_string(e));
+            std::optional<msg::Cmd> cmd;
+            {
+              py::gil_scoped_release release;
+              cmd = app.handle_nav(n);
+            }
+            if (!cmd) return py::none();
+            return encoded(*cmd);
+          },
+          py::arg("nav"), "one encoded nav -> the encoded cmd (None for a nav older than the last answered)")
+      .def("hello", [](const FlightApp& app, uint32_t session) { return encoded(app.hello(session)); },
+           py::arg("session") = 1, "the encoded hello message")
+      .def("telemetry", [](const FlightApp& app) { return encoded(app.telemetry()); },
+           "the encoded telemetry message (per-phase solve-time log)");
+}

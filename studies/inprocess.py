@@ -1,0 +1,130 @@
+"""The in-process path: the flight application itself (flight_sw.FlightApp, the pybind11 binding of
+flight_sw/app) in this process, served by the very same host_sim Simulator and PilServer as a PIL
+run, without Zenoh or a flight process.
+
+    summary, run_dir = run_in_process(scenario, settings, seed=3, truth="nonlinear", run_dir=...)
+
+The FlightApp is built from the flight executable's own options (the same parser), so it flies
+what the executable flies; `InProcessLink` takes the place of the server's ZenohLink: each nav
+the server publishes is encoded, handed to FlightApp.handle_nav, and the encoded cmd that comes
+back is decoded and queued as if it had arrived, with telemetry every 20 answers and the final
+telemetry and bye when the host says bye, as the executable sends them. The server's loop, delay
+model, docking check, stop conditions and record are the PIL run's own, so the record is the same
+bit for bit except for what measures time (solve/step wall time, round trip) and the flight's
+self-description (hello); tests/test_studies.py checks this against the native executable.
+"""
+from __future__ import annotations
+
+import queue
+import time
+import uuid
+from pathlib import Path
+from typing import Optional
+
+from host_sim import messages as msg
+from host_sim import pil as pil_module
+from host_sim import server as server_module
+from host_sim.record import RunRecorder
+from host_sim.scenario import Scenario
+from host_sim.server import FLIGHT_COLUMNS, PilServer, RunSummary, ServerConfig
+from host_sim.simulator import Simulator
+
+from .settings import GuidanceSettings
+
+TELEMETRY_EVERY = 20  # the flight executable's default --telemetry-every
+
+
+class InProcessLink:
+    """What PilServer needs of its link (open/put/get/close, inbox, rejected, session), served by a
+    flight_sw.FlightApp instead of a Zenoh session."""
+
+    def __init__(self, app):
+        self.app = app
+        self.inbox: "queue.Queue[tuple[float, object]]" = queue.Queue()
+        self.rejected: list[tuple[str, str]] = []
+        self.session = None
+        self.answered = 0
+        self.last_step = 0
+
+    def open(self) -> None:
+        self.session = "in-process"
+        self._arrive(self.app.hello(1))
+
+    def _arrive(self, data: bytes) -> None:
+        self.inbox.put((time.monotonic(), msg.decode(data)))
+
+    def put(self, kind: str, message) -> None:
+        if kind == "nav":
+            cmd = self.app.handle_nav(msg.encode(message))
+            if cmd is not None:
+                self._arrive(cmd)
+                self.last_step = message.step
+                self.answered += 1
+                if self.answered % TELEMETRY_EVERY == 0:
+                    self._arrive(self.app.telemetry())
+        elif kind == "bye":  # the flight software answers bye with its final telemetry and its own bye
+            self._arrive(self.app.telemetry())
+            self.inbox.put((time.monotonic(), msg.Bye(reason=0, last_step=self.last_step,
+                                                      text="flight_sw exit: bye from the host")))
+
+    def get(self, timeout_s: float):
+        try:
+            return self.inbox.get(timeout=max(timeout_s, 0.0))[1]
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        self.session = None
+
+
+def flight_options(sim: Simulator, settings: GuidanceSettings, run_id: str) -> list[str]:
+    """The options run_pil gives the flight executable (but the link's): the run id, the error model
+    of this run where the host passes one, then the study's guidance settings."""
+    error_model = getattr(pil_module, "error_model_args", None)
+    return ["--run", run_id, *(error_model(sim) if error_model else []), *settings.flight_args()]
+
+
+def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int = 0, truth: str = "cw",
+                   sensor_noise: bool = True, thrust_noise: bool = True, impulsive: bool = False,
+                   sim_options: Optional[dict] = None, config: Optional[ServerConfig] = None,
+                   run_dir: Path | str, meta: Optional[dict] = None) -> tuple[RunSummary, Path]:
+    """One run with the in-process flight application; the record has run_pil's layout and metadata."""
+    import flight_sw
+
+    sim = Simulator(scenario, truth=truth, seed=seed, sensor_noise=sensor_noise, thrust_noise=thrust_noise,
+                    impulsive=impulsive, **(sim_options or {}))
+    cfg = config or ServerConfig()
+    cfg.run_id = cfg.run_id if cfg.run_id != "run" else uuid.uuid4().hex[:12]
+    options = flight_options(sim, settings, cfg.run_id)
+    app = flight_sw.FlightApp(options)
+    record_meta = dict(sim.record_meta())
+    record_meta.update(run_id=cfg.run_id, flight_command=["in-process", *options], truth=truth,
+                       lockstep=cfg.lockstep, delay_model=cfg.delay_model, zenoh_mode="in-process")
+    record_meta.update(meta or {})
+    run_dir = Path(run_dir)
+    # the per-step columns the server fills (flight telemetry; a safety monitor's margins where it has one)
+    columns = FLIGHT_COLUMNS + tuple(getattr(server_module, "SAFETY_COLUMNS", ()))
+    recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=columns)
+    server = PilServer(sim, cfg, record=recorder)
+    server.link = InProcessLink(app)
+    status = "failed"
+    try:
+        summary = server.run()
+        status = "finished"
+    finally:
+        s = server.summary
+        hello = s.hello
+        recorder.close(
+            status,
+            end=s.end, docked=s.docked, steps=s.steps, t_end_s=s.t_s, dv_total_mps=s.dv_total_mps, dv_l1_mps=s.dv_l1_mps,
+            dv_per_phase_mps=s.dv_per_phase_mps, time_per_phase_s=s.time_per_phase_s,
+            final_range_to_port_m=s.final_range_to_port_m, nav_resends=s.nav_resends,
+            late_commands=s.late_commands, rejected_messages=s.rejected_messages,
+            flight_exit_code=0 if status == "finished" else None,
+            flight_hello=None if hello is None else {k: getattr(hello, k) for k in
+                                                      ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction",
+                                                       "period_s", "solver_mode", "solver_max_iter", "session")},
+            flight_telemetry=None if s.telemetry is None else vars(s.telemetry),
+            **({"safety": s.safety} if hasattr(s, "safety") else {}),
+        )
+    return summary, run_dir
