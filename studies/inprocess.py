@@ -35,13 +35,15 @@ TELEMETRY_EVERY = 20  # the flight executable's default --telemetry-every
 
 
 class InProcessLink:
-    """What PilServer needs of its link (open/put/get/close, inbox, rejected, session), served by a
-    flight_sw.FlightApp instead of a Zenoh session."""
+    """What PilServer needs of its link (open/put/get/close, inbox, rejected, discarded, session), served
+    by a flight_sw.FlightApp instead of a Zenoh session. Nothing travels, so nothing is sealed or can be
+    forged: the counters of dropped messages stay zero."""
 
     def __init__(self, app):
         self.app = app
         self.inbox: "queue.Queue[tuple[float, object]]" = queue.Queue()
-        self.rejected: list[tuple[str, str]] = []
+        self.rejected: "queue.Queue[tuple[str, str, str]]" = queue.Queue()
+        self.discarded = {k: 0 for k in server_module.DISCARD_KINDS}
         self.session = None
         self.answered = 0
         self.last_step = 0

@@ -33,6 +33,7 @@ import pytest
 import zenoh
 
 import flight_sw
+from flight_reference import flight_params
 from host_sim import messages as msg
 from host_sim.pil import REPO, find_flight_executable, run_pil
 from host_sim.record import HOST_DIED, TIMING_COLUMNS, load_events, load_run, record_digest
@@ -52,7 +53,7 @@ def wait_until(predicate, what: str, timeout: float = WAIT_S) -> None:
 
 @pytest.fixture(scope="module")
 def reference():
-    params = flight_sw.GuidanceParams()
+    params = flight_params()
     case = flight_sw.dissertation_case(1)
     ref = flight_sw.run_closed_loop(params, case["x0"], case["q_lvlh_body"], case["omega_body_rad_s"])
     assert ref.docked

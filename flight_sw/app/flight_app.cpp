@@ -326,6 +326,7 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
   zc.endpoint = cfg_.endpoint;
   zc.lease_ms = cfg_.lease_ms;
   zc.untimed = cfg_.untimed_link;
+  zc.seed = cfg_.session_seed;
   zc.max_reassembled_bytes = 4096;  // every rvd message fits one batch: a fragmented one is oversized
   session_ = std::make_unique<link::ZenohSession>(zc);
   session_->declare_subscriber(key("nav"), [this](const link::Sample& s) { receive_nav(s.payload, s.size); });

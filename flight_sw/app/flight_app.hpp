@@ -54,6 +54,7 @@ struct AppConfig {
   // -icount sleep=off, where the guest clock stands still while the guest waits. The idle and
   // connect timeouts are then not applied either; the host-side runner's limit covers a silent host.
   bool untimed_link = false;
+  uint64_t session_seed = 0;       // link::ZenohConfig::seed: 0 random; fixed only for reproducibility checks
   int telemetry_every = 20;        // steps between telemetry messages (and one at the end)
   int markers = -1;                // instruction markers: -1 auto (ARM builds), 0 off, 1 on
   // Count the solves' user-mode instructions with the CPU's own PMU (perf_event_open). For QEMU

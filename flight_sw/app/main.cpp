@@ -50,6 +50,8 @@ Link
                             -icount sleep=off: the guest clock stands still while it waits, so a
                             timeout would fire at once); idle and connect timeouts are off too
   --telemetry-every K       steps between telemetry messages (default 20)
+  --session-seed N          fix the ZenohID and initial sequence numbers (reproducibility checks
+                            only: every byte the flight software sends then repeats run to run)
 Guidance
   --horizon R,A,D           prediction horizons of rendezvous, approach, docking (default 30,15,12)
   --period R,A,D            control periods [s] (default 30,20,5)
@@ -213,6 +215,7 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only, std::string& k
     else if (a == "--idle-timeout-s") cfg.idle_timeout_s = parse_double(value(), a);
     else if (a == "--connect-timeout-s") cfg.connect_timeout_s = parse_double(value(), a);
     else if (a == "--untimed-link") cfg.untimed_link = true;
+    else if (a == "--session-seed") cfg.session_seed = static_cast<uint64_t>(parse_double(value(), a));
     else if (a == "--telemetry-every") cfg.telemetry_every = static_cast<int>(parse_double(value(), a));
     else if (a == "--horizon") set_phase_ints(cfg.guidance, split_numbers(value(), 3, "--horizon"), &PhaseParams::N);
     else if (a == "--period") {

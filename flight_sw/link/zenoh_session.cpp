@@ -135,7 +135,7 @@ class ZenohSession::Dispatcher : public BatchHandler {
 ZenohSession::ZenohSession(ZenohConfig config)
     : config_(std::move(config)),
       tx_(TcpLink::kPrefixSize + TcpLink::kMaxBatch),
-      rng_(session_seed()) {
+      rng_(config_.seed ? config_.seed : session_seed()) {
   key_scratch_.reserve(256);
 }
 

@@ -64,6 +64,10 @@ struct ZenohConfig {
   // and a timeout would make QEMU jump the clock to it at once instead of after the time it
   // names; the host-side runner's real-time limit then covers a silent host.
   bool untimed = false;
+  // Seed of the ZenohID and the initial sequence numbers; 0 (the default): a fresh random one. A fixed
+  // seed makes every byte the flight software sends repeat from run to run, for reproducibility checks
+  // (the cycle model's cache simulation sees the link code too); never for flight.
+  uint64_t seed = 0;
 };
 
 // How the key of a received message was written on the wire (§7.3).
