@@ -5,7 +5,7 @@ noise, no delay), with delta-v and time per phase printed beside Tables 3.3-3.5.
     python -m bench.closed_loop_cases --horizons       the benchmark horizons, one phase at a time
     python -m bench.closed_loop_cases --variants       Table 3.6: set point / no set point / 1-norm (Case 1)
     python -m bench.closed_loop_cases --ablations      the choices flight_sw/guidance/README.md argues for
-    python -m bench.closed_loop_cases --save-qps qps.npz [--max-qps 300]   the QPs solved, bench.qp_forms format
+    python -m bench.closed_loop_cases --save-qps qps.npz [--max-qps 300]   the QPs solved, support.qp_forms format
 
 Delta-v is the sum of |dv|_2 of the realised (allocated) impulses, as the dissertation's resultant; |dv|_1
 (what six axis thrusters burn) is printed beside it. Solve times are host wall time of the C++ solver.
@@ -26,7 +26,7 @@ PHASES = ("rendezvous", "approach", "docking")
 DISSERTATION = {1: ((10.24, 1169), (2.84, 260), (0.20, 315)),
                 2: ((9.19, 989), (2.76, 280), (0.18, 310)),
                 3: ((8.38, 929), (4.04, 360), (0.25, 280))}
-CASE_NAMES = {1: "V-bar", 2: "R-bar", 3: "rotating 0.25 deg/s"}
+CASE_NAMES = {1: "V-bar", 2: "R-bar", 3: "rotating 0.15 deg/s"}
 # Table 3.6 (Case 1): total delta-v [m/s], time [min].
 TABLE_3_6 = {"QP with set point": (13.28, 29.07), "QP without set point": (12.65, 71.23), "LP": (12.74, 40.57)}
 
@@ -141,7 +141,7 @@ def ablations_table() -> None:
 
 
 def save_qps(path: str, max_qps: int) -> None:
-    from bench.qp_forms import from_dict, save_qp_set
+    from support.qp_forms import from_dict, save_qp_set
 
     p = fsw.GuidanceParams()
     qps = []
@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--horizons", action="store_true", help="sweep the benchmark horizons")
     ap.add_argument("--variants", action="store_true", help="Table 3.6 rendezvous objectives")
     ap.add_argument("--ablations", action="store_true", help="the README's parameter choices, each undone")
-    ap.add_argument("--save-qps", metavar="PATH", help="write the QPs of Cases 1-3 (bench.qp_forms .npz)")
+    ap.add_argument("--save-qps", metavar="PATH", help="write the QPs of Cases 1-3 (support.qp_forms .npz)")
     ap.add_argument("--max-qps", type=int, default=0, help="with --save-qps: keep this many, evenly spread")
     a = ap.parse_args(argv)
     if a.save_qps:

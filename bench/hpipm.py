@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.qp_forms import OcpQpData
+from support.qp_forms import OcpQpData
 
 MODES = {"speed_abs": 0, "speed": 1, "balance": 2, "robust": 3}
 _lib = None
@@ -258,7 +258,7 @@ class HpipmSolver:
 
 
 if __name__ == "__main__":  # a smoke run: one phase QP of each kind against the reference
-    from bench.qp_forms import PHASES, solve_proxsuite
+    from support.qp_forms import PHASES, solve_proxsuite
     rng = np.random.default_rng(0)
     print(version(), f"call overhead {call_overhead_ns():.0f} ns")
     for name, gen in PHASES.items():

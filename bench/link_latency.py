@@ -65,11 +65,10 @@ from pathlib import Path
 from typing import Callable, Optional
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from zenoh_link_harness import Probe, free_port, python_zenoh, wait_matching  # noqa: E402
+from support.zenoh_link_harness import Probe, free_port, python_zenoh, wait_matching  # noqa: E402
 
 CLOCK = ("host time.monotonic() (CLOCK_MONOTONIC): nav put -> cmd taken from the host inbox; "
          "host wall time, also under QEMU (not target time)")

@@ -2,7 +2,7 @@
 the same MPC QPs, measured in one run. Prints figures; asserts nothing about speed.
 
     python -m bench.solvers                      # synthetic QPs per guidance phase and horizon
-    python -m bench.solvers --qp-set run.npz     # a recorded QP set (format: bench/qp_forms.py)
+    python -m bench.solvers --qp-set run.npz     # a recorded QP set (format: tests/support/qp_forms.py)
     python -m bench.solvers --quick              # fewer QPs and repeats (a smoke run)
     python -m bench.solvers --record-cases real.npz  # record the closed-loop QPs of Cases 1-3, bench them
     python -m bench.solvers --closed-loop-set cl.npz --per-group 40   # the project's closed-loop set:
@@ -46,7 +46,7 @@ from collections import defaultdict
 import numpy as np
 import scipy.sparse as sp
 
-from bench.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, condense, from_dict, load_qp_set,
+from support.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, condense, from_dict, load_qp_set,
                             save_qp_set, solve_proxsuite, to_stacked)
 
 AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |f*|)
@@ -240,7 +240,7 @@ def closed_loop_set(path: str, per_group: int, seed: int = 0, random_starts: int
     process) of Cases 1-3 and `random_starts` seeded random starts (host_sim.scenario.random_scenario;
     every third one with a target spinning at 0.1-0.3 deg/s about a random body axis), at the three
     horizon sets (rendezvous 15/30/45, approach 5/15/30, docking 5/12/30); per_group QPs drawn per
-    phase and horizon. Written to `path` (bench/qp_forms.py format)."""
+    phase and horizon. Written to `path` (tests/support/qp_forms.py format)."""
     import flight_sw
     from host_sim.scenario import random_scenario
     rng = np.random.default_rng(seed)
@@ -322,7 +322,7 @@ def pct(values, q):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--qp-set", help="QP-set .npz file (bench/qp_forms.py format); default: synthetic")
+    ap.add_argument("--qp-set", help="QP-set .npz file (tests/support/qp_forms.py format); default: synthetic")
     ap.add_argument("--per-group", type=int, default=10, help="synthetic QPs per phase and horizon")
     ap.add_argument("--repeats", type=int, default=5, help="timed solves per QP and solver")
     ap.add_argument("--solvers", default=",".join(SOLVERS), help="comma-separated subset of " + ",".join(SOLVERS))

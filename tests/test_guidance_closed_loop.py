@@ -9,8 +9,8 @@ import pytest
 from scipy.linalg import expm
 
 import flight_sw as fsw
-from cw_reference import cw_a
-from test_guidance_qp import DEG, in_pyramid, quat_after, rotate, solve_clarabel
+from support.cw_reference import cw_a
+from support.guidance_geometry import DEG, in_pyramid, quat_after, rotate, solve_clarabel
 
 # The dissertation's tables 3.3-3.5: (delta-v, time) per phase.
 DISSERTATION = {1: ((10.24, 1169), (2.84, 260), (0.20, 315)),
@@ -131,20 +131,54 @@ def test_commands_are_the_qp_optima(runs, k):
         np.testing.assert_allclose(r.dv_cmd_mps[i], np.clip(u_ref[0][:3], -u_max, u_max), atol=1e-6)
 
 
-def test_summary_figures(runs, capsys):
-    """Delta-v and time per phase beside the dissertation's (printed; the comparison is in the README)."""
-    lines = [f"{'case':>4} {'phase':>10} {'dv [m/s]':>9} {'diss.':>6} {'t [s]':>6} {'diss.':>6}"]
-    for k, (p, c, r) in runs.items():
-        tot_dv = tot_t = 0.0
-        for (name, d), (dv_ref, t_ref) in zip(r.phases.items(), DISSERTATION[k]):
-            lines.append(f"{k:>4} {name:>10} {d['dv_mps']:9.2f} {dv_ref:6.2f} {d['time_s']:6.0f} {t_ref:6.0f}")
-            tot_dv, tot_t = tot_dv + d["dv_mps"], tot_t + d["time_s"]
-        assert tot_dv == pytest.approx(r.total["dv_mps"]) and tot_t == pytest.approx(r.t_final_s)
-        ref_dv = sum(v[0] for v in DISSERTATION[k])
-        lines.append(f"{k:>4} {'total':>10} {tot_dv:9.2f} {ref_dv:6.2f} {tot_t:6.0f} {sum(v[1] for v in DISSERTATION[k]):6.0f}")
-        # Same order of magnitude as the dissertation (its 42 set-up differs in unstated parameters).
-        assert 0.5 * ref_dv < tot_dv < 1.5 * ref_dv
-        # The log's delta-v is the resultant of the realised impulses.
-        assert r.total["dv_mps"] == pytest.approx(np.linalg.norm(r.dv_alloc_mps, axis=1).sum())
+def _figures_from_the_trajectory(p, r):
+    """Delta-v and time per phase recomputed from the states alone: the impulse of step i is what takes
+    x[i] to x[i+1] through the CW flow written here (dv = (expm(-A Ts) x[i+1])_v - v[i]), the time of a
+    phase runs from its first sample to the next phase's first sample. Nothing from the logged
+    delta-v or from the loop's own totals."""
+    a = cw_a(p.mean_motion_rad_s())
+    dv, t = {1: 0.0, 2: 0.0, 3: 0.0}, {1: 0.0, 2: 0.0, 3: 0.0}
+    for i in range(r.steps - 1):
+        ph = int(r.phase[i])
+        if ph == 4:
+            break
+        back = expm(-a * (r.t_s[i + 1] - r.t_s[i])) @ r.x[i + 1]
+        np.testing.assert_allclose(back[:3], r.x[i, :3], atol=1e-6)  # an impulse changes no position
+        dv[ph] += float(np.linalg.norm(back[3:] - r.x[i, 3:]))
+        t[ph] += r.t_s[i + 1] - r.t_s[i]
+    return dv, t
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_phase_figures_are_those_of_the_trajectory(runs, k):
+    """The loop's delta-v and time per phase (what the benchmark and the README report) agree with the
+    ones recomputed from the trajectory to 1e-6 m/s and 1e-9 s (the inversion's rounding)."""
+    p, c, r = runs[k]
+    dv, t = _figures_from_the_trajectory(p, r)
+    for ph, name in ((1, "rendezvous"), (2, "approach"), (3, "docking")):
+        assert r.phases[name]["dv_mps"] == pytest.approx(dv[ph], abs=1e-6), name
+        assert r.phases[name]["time_s"] == pytest.approx(t[ph], abs=1e-9), name
+    assert r.total["dv_mps"] == pytest.approx(sum(dv.values()), abs=1e-5)
+    assert r.t_final_s == pytest.approx(sum(t.values()), abs=1e-9)
+
+
+# Totals against Tables 3.3-3.5 (ideal setting), within the tolerances the reproduction claims in
+# flight_sw/guidance/README.md ("Results against the dissertation", where each difference is explained):
+#  - Case 1: time 10 % (the acceptance of the reproduction); delta-v 15 %: our CW plant needs none of the
+#    delta-v the dissertation's J2 + drag truth costs, and its r1, r2, v_max and switching are unstated;
+#  - Case 2: delta-v 10 %, time 15 % (our rendezvous takes ~20 % longer, cause not isolated);
+#  - Case 3: 25 % and 15 %: the dissertation does not give its spin rate; ours (0.15 deg/s) is the
+#    fastest the docking phase can follow inside its cone, so its approach and docking differ most.
+TOLERANCE = {1: (0.15, 0.10), 2: (0.10, 0.15), 3: (0.25, 0.15)}
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_totals_against_the_dissertation(runs, k, capsys):
+    p, c, r = runs[k]
+    dv, t = _figures_from_the_trajectory(p, r)
+    ref_dv, ref_t = sum(v[0] for v in DISSERTATION[k]), sum(v[1] for v in DISSERTATION[k])
+    tol_dv, tol_t = TOLERANCE[k]
     with capsys.disabled():
-        print("\n" + "\n".join(lines))
+        print(f"\ncase {k}: dv {sum(dv.values()):.2f} m/s (diss. {ref_dv:.2f}), t {sum(t.values()):.0f} s (diss. {ref_t:.0f})")
+    assert sum(dv.values()) == pytest.approx(ref_dv, rel=tol_dv)
+    assert sum(t.values()) == pytest.approx(ref_t, rel=tol_t)

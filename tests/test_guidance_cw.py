@@ -7,7 +7,7 @@ import pytest
 from scipy.linalg import expm
 
 import flight_sw as fsw
-from cw_reference import cw_a
+from support.cw_reference import cw_a
 
 MU, RE = 3.986004415e14, 6378136.3  # EGM96, as host_sim/constants.py
 

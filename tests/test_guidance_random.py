@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import flight_sw as fsw
-from test_guidance_qp import DEG, VBAR, in_pyramid
+from support.guidance_geometry import DEG, VBAR, in_pyramid
 
 
 def drift_free_velocity(n, rho):

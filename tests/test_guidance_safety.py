@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import flight_sw as fsw
-from test_guidance_qp import VBAR
+from support.guidance_geometry import VBAR
 
 FAR = np.array([140.0, -1580.0, 60.0, -0.9, -0.32, 0.0])
 

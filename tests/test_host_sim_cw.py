@@ -13,7 +13,7 @@ from host_sim.cw import cw_forced_response, cw_stm, drift_free_velocity
 from host_sim.scenario import load
 from host_sim.simulator import Simulator
 
-from cw_reference import cw_a
+from support.cw_reference import cw_a
 
 N_500KM = math.sqrt(k.MU_EARTH_M3_S2 / (k.R_EARTH_M + 500e3) ** 3)
 AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)

@@ -33,7 +33,7 @@ import pytest
 import zenoh
 
 import flight_sw
-from flight_reference import flight_params
+from support.flight_reference import flight_params
 from host_sim import messages as msg
 from host_sim.pil import REPO, find_flight_executable, run_pil
 from host_sim.record import HOST_DIED, TIMING_COLUMNS, load_events, load_run, record_digest

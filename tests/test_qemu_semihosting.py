@@ -22,8 +22,8 @@ from host_sim.pil import run_pil
 from host_sim.record import load_run
 from host_sim.server import ServerConfig
 from qemu import build, semihosting_link, system
-from flight_reference import flight_params
-from system_mode import system_mode_or_skip
+from support.flight_reference import flight_params
+from support.system_mode import system_mode_or_skip
 
 pytestmark = pytest.mark.qemu
 

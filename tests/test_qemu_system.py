@@ -18,7 +18,7 @@ import threading
 import pytest
 
 from qemu import build, system, targets
-from system_mode import system_mode_or_skip
+from support.system_mode import system_mode_or_skip
 
 pytestmark = [pytest.mark.qemu, pytest.mark.slow]
 

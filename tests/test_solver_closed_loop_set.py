@@ -15,7 +15,7 @@ import pytest
 from scipy.optimize import linprog
 
 import flight_sw
-from bench.qp_forms import OcpQpData, condense, from_dict, solve_proxsuite, to_stacked
+from support.qp_forms import OcpQpData, condense, from_dict, solve_proxsuite, to_stacked
 
 HORIZON_SETS = ((15, 5, 5), (30, 15, 12), (45, 30, 30))
 PER_GROUP = 35

@@ -25,7 +25,7 @@ import threading
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 FIELD = re.compile(r'(\w+)=("(?:[^"]*)"|\S*)')
 
 
@@ -95,6 +95,18 @@ class Probe:
         self.send("stats")
         f = self.expect("STATS", timeout)
         return {k: (int(v) if v.lstrip("-").isdigit() else v) for k, v in f.items()}
+
+    def wait_for_stat(self, name: str, at_least: int, timeout: float = 60.0) -> dict[str, int | str]:
+        """Poll the probe's counters until `name` reaches `at_least`: a bounded wait on a condition
+        (fails after `timeout`), never a pause of a guessed length."""
+        deadline = time.monotonic() + timeout
+        while True:
+            st = self.stats()
+            if int(st.get(name, 0)) >= at_least:
+                return st
+            if time.monotonic() > deadline:
+                raise AssertionError(f"{name} = {st.get(name)} < {at_least} after {timeout} s; stats {st}")
+            time.sleep(0.05)  # the polling interval; what is awaited is the counter, not the time
 
     def close(self, timeout: float = 10.0) -> int:
         """Ends the probe (EOF on its stdin); fails if a sanitizer reported anything."""
