@@ -7,6 +7,7 @@
 #include <doctest/doctest.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <string>
 
 #include "alloc_counter.hpp"
@@ -21,6 +22,35 @@ void forbid_heap(bool forbid) {
 #endif
 }
 }  // namespace
+
+TEST_CASE("the counter sees every allocation path this build has") {
+  MESSAGE("allocations counted by " << std::string(rvd::testing::kAllocationCounting));
+  using rvd::testing::allocations_during;
+  CHECK(allocations_during([] {
+          Eigen::VectorXd v = Eigen::VectorXd::Ones(64);  // Eigen's aligned malloc
+          CHECK(v.sum() == 64.0);
+        }) >= 1);
+  CHECK(allocations_during([] {
+          void* volatile p = std::malloc(24);
+          std::free(p);
+        }) >= 1);
+  CHECK(allocations_during([] {
+          void* volatile p = std::calloc(3, 8);
+          p = std::realloc(p, 4096);
+          std::free(p);
+        }) >= 2);
+  CHECK(allocations_during([] {
+          void* p = nullptr;
+          REQUIRE(posix_memalign(&p, 64, 128) == 0);
+          std::free(p);
+          void* volatile q = std::aligned_alloc(64, 128);
+          std::free(q);
+        }) >= 2);
+  CHECK(allocations_during([] {
+          int* volatile p = new int(3);
+          delete p;
+        }) >= 1);
+}
 
 TEST_CASE("no heap allocation inside Guidance::step, whatever the step does") {
   GuidanceParams p;

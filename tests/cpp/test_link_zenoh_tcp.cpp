@@ -5,10 +5,14 @@
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <fstream>
+#include <iterator>
 #include <thread>
 #include <string>
 #include <vector>
@@ -95,6 +99,22 @@ TEST_CASE("a semihosting endpoint that cannot be opened fails with the reason") 
   CHECK(link.receive_batch(data, size, -1, &err) == LinkStatus::NotConnected);
 }
 
+// True once thread `tid` of this process sleeps in the kernel (state S in /proc/self/task/<tid>/stat)
+// or has ended; false if neither happens within `bound` (a condition, not a pause).
+static bool wait_until_sleeping_or_gone(pid_t tid, const std::atomic<bool>& done, std::chrono::seconds bound) {
+  const auto until = std::chrono::steady_clock::now() + bound;
+  const std::string path = "/proc/self/task/" + std::to_string(tid) + "/stat";
+  while (std::chrono::steady_clock::now() < until) {
+    if (done) return true;
+    std::ifstream in(path);
+    std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const size_t paren = stat.rfind(')');  // the command name may hold spaces: the state follows ')'
+    if (paren != std::string::npos && paren + 2 < stat.size() && stat[paren + 2] == 'S') return true;
+    std::this_thread::yield();
+  }
+  return false;
+}
+
 TEST_CASE("a negative timeout waits without limit for the whole batch") {
   Listener l;
   TcpLink link;
@@ -102,23 +122,31 @@ TEST_CASE("a negative timeout waits without limit for the whole batch") {
   REQUIRE(link.connect({"127.0.0.1", l.port}, 1000, &err) == LinkStatus::Ok);
   const int peer = ::accept(l.fd, nullptr, nullptr);
   REQUIRE(peer >= 0);
-  std::thread late([peer] {  // the batch comes in two pieces, the second after a pause
-    const uint8_t head[] = {3, 0, 'a'};
-    const uint8_t tail[] = {'b', 'c'};
-    ::send(peer, head, sizeof head, 0);
-    std::this_thread::sleep_for(std::chrono::milliseconds(300));
-    ::send(peer, tail, sizeof tail, 0);
-  });
+  // The batch comes in two pieces; the second is sent only once the receiver, holding the first,
+  // sleeps in the kernel waiting for more (so the wait is exercised, whatever the machine's load).
+  const uint8_t head[] = {3, 0, 'a'};
+  const uint8_t tail[] = {'b', 'c'};
+  REQUIRE(::send(peer, head, sizeof head, 0) == static_cast<ssize_t>(sizeof head));
+  std::atomic<pid_t> receiver_tid{0};
+  std::atomic<bool> done{false};
   const uint8_t* data = nullptr;
   size_t size = 0;
-  const auto t0 = std::chrono::steady_clock::now();
-  const LinkStatus st = link.receive_batch(data, size, -1, &err);
-  const auto waited = std::chrono::steady_clock::now() - t0;
-  late.join();
+  LinkStatus st = LinkStatus::NotConnected;
+  std::thread receiver([&] {
+    receiver_tid = static_cast<pid_t>(::syscall(SYS_gettid));
+    st = link.receive_batch(data, size, -1, &err);
+    done = true;
+  });
+  while (receiver_tid == 0) std::this_thread::yield();
+  const bool waited_or_returned = wait_until_sleeping_or_gone(receiver_tid, done, std::chrono::seconds(60));
+  const bool returned_early = done;  // before the second piece was sent: it did not wait
+  ::send(peer, tail, sizeof tail, 0);
+  receiver.join();
   ::close(peer);
+  CHECK(waited_or_returned);
+  CHECK_FALSE(returned_early);
   REQUIRE(st == LinkStatus::Ok);
   CHECK(std::string(reinterpret_cast<const char*>(data), size) == "abc");
-  CHECK(waited >= std::chrono::milliseconds(250));  // it did wait for the second piece
 }
 
 TEST_CASE("connect to a closed port fails with a reason") {
