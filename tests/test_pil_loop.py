@@ -6,13 +6,12 @@ session, malformed payloads, dropped nav messages, commands too late for real-ti
 """
 import math
 import signal
-import time
 
 import numpy as np
 import pytest
 
 import flight_sw
-from flight_reference import flight_params
+from support.flight_reference import flight_params
 from host_sim import messages as msg
 from host_sim.pil import run_pil
 from host_sim.record import load_events, load_run
@@ -68,12 +67,12 @@ def test_flight_software_killed_mid_run_is_a_recorded_fault(tmp_path, flight_exe
                 killed_at["k"] = k
         server.on_step = on_step
 
-    t0 = time.monotonic()
-    summary, run_dir = _ideal_case1(tmp_path, "killed", config=ServerConfig(cmd_timeout_s=2.0, nav_retries=2),
+    # A command timeout far longer than noticing an exit takes: the server must see the dead process
+    # (its exit, not silence) and neither resend nav 16 nor wait out a timeout.
+    summary, run_dir = _ideal_case1(tmp_path, "killed", config=ServerConfig(cmd_timeout_s=30.0, nav_retries=1),
                                     on_started=kill_at_step_15)
-    elapsed = time.monotonic() - t0
     assert summary.end == "flight software lost"
-    assert elapsed < 30, "the server must notice a dead flight process, not wait out every timeout"
+    assert summary.nav_resends == 0
     meta, steps = load_run(run_dir)
     assert meta["status"] == "finished" and meta["end"] == "flight software lost"
     assert meta["flight_exit_code"] == -signal.SIGKILL
@@ -81,7 +80,9 @@ def test_flight_software_killed_mid_run_is_a_recorded_fault(tmp_path, flight_exe
     assert list(steps["step"]) == list(range(17))
     assert steps["pulse_cmd_px_s"].iloc[:16].notna().all() and math.isnan(steps["pulse_cmd_px_s"].iloc[16])
     events = load_events(run_dir)
-    assert "flight_software_lost" in set(events["kind"])
+    lost = events[events["kind"] == "flight_software_lost"]["detail"].tolist()
+    assert len(lost) == 1 and "exited" in lost[0], lost
+    assert "nav_resend" not in set(events["kind"])
 
 
 def test_host_session_restart_mid_run_resumes_after_reconnect(tmp_path, flight_exe, in_process_case1):
@@ -162,22 +163,30 @@ def test_one_percent_of_nav_messages_dropped_lockstep_recovers(tmp_path, flight_
 def test_real_time_pacing_records_late_commands_without_hanging(tmp_path, flight_exe):
     # 10^6 simulated seconds per wall second: a 30 s period lasts 30 us, far less than the link's
     # round trip, so commands miss their slot; the chaser coasts, the run ends at its timeout.
+    # (Not hanging: the run ends by its own simulated-time bound; no wall time is asserted.)
     cfg = ServerConfig(lockstep=False, speedup=1e6)
-    t0 = time.monotonic()
     summary, run_dir = _ideal_case1(tmp_path, "realtime", config=cfg)
-    assert time.monotonic() - t0 < 60
     assert summary.late_commands > 0
     assert summary.end in ("timeout", "collision", "docked")
     events = load_events(run_dir)
     assert (events["kind"] == "late_cmd").sum() == summary.late_commands
+    # A late command is not applied: those periods are coasts in the record.
+    _, steps = load_run(run_dir)
+    late = set(events[events["kind"] == "late_cmd"]["step"])
+    pulses = steps[steps["step"].isin(late)][[f"pulse_cmd_{a}_s" for a in ("px", "mx", "py", "my", "pz", "mz")]]
+    assert len(pulses) == len(late) and (pulses.to_numpy() == 0.0).all()
 
 
 def test_real_time_pacing_at_a_feasible_speed_docks(tmp_path, flight_exe, in_process_case1):
-    # 200x real time: a 5 s docking period lasts 25 ms of wall time, ample for a native solve.
-    summary, _ = _ideal_case1(tmp_path, "realtime_ok", config=ServerConfig(lockstep=False, speedup=200.0))
+    # 200x real time: a 5 s docking period lasts 25 ms of wall time, ample for a native solve on an
+    # idle machine; on a loaded one a command can still miss its slot. What must hold either way:
+    # the run docks, every miss is recorded as such, and with none the run is the lockstep one.
+    summary, run_dir = _ideal_case1(tmp_path, "realtime_ok", config=ServerConfig(lockstep=False, speedup=200.0))
     assert summary.end == "docked", summary.end
-    assert summary.late_commands == 0
-    assert summary.dv_total_mps == pytest.approx(in_process_case1.total["dv_mps"], abs=1e-9)
+    events = load_events(run_dir)
+    assert (events["kind"] == "late_cmd").sum() == summary.late_commands
+    if summary.late_commands == 0:
+        assert summary.dv_total_mps == pytest.approx(in_process_case1.total["dv_mps"], abs=1e-9)
 
 
 def test_deadline_monitor_counts_overruns_and_falls_back(tmp_path, flight_exe):
