@@ -32,7 +32,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 from host_sim.record import load_events, load_run  # noqa: E402
 
 PHASES = {1: "rendezvous", 2: "approach", 3: "docking"}
-# Dissertation ch. 6 (CVXGEN, QEMU ARM, mean emulated solve time, ms) per phase and horizon.
+# A. Fear, Application of Model Predictive Control for the Autonomous Rendezvous and Docking of Small
+# Satellites (PhD dissertation, Georgia Tech, 2023), ch. 6: CVXGEN under QEMU full-system ARM emulation,
+# mean solve wall time [ms] per phase and horizon.
 DISSERTATION_MS = {"rendezvous": {15: 119.18, 30: 270.40, 45: 863.91},
                    "approach": {5: 53.40, 15: 181.55, 30: 394.89},
                    "docking": {5: 9.1, 12: 30.1, 30: 98.8}}
