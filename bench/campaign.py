@@ -108,6 +108,7 @@ class Campaign:
         self.runs_dir = out / "runs"
         self.log_lines: list[str] = []
         self.t0 = time.monotonic()
+        self.owned: list[str] = []  # every run directory of this campaign (run or reused), for the report
 
     def say(self, text: str) -> None:
         line = f"[{time.monotonic() - self.t0:6.0f} s] {text}"
@@ -118,6 +119,7 @@ class Campaign:
     def run(self, run_dir: Path, scenario_label: str, *, fingerprint: str, flight_command=None, runner=(),
             flight_exe=None, flight_args=(), ideal=False, config: ServerConfig | None = None,
             flight_endpoint=None, meta=None) -> dict:
+        self.owned.append(str(run_dir.relative_to(self.out)))
         if _finished(run_dir, fingerprint):
             self.say(f"  reuse  {run_dir.relative_to(self.out)}")
             return json.loads((run_dir / "meta.json").read_text())
@@ -307,6 +309,8 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
     ap.add_argument("--no-system", action="store_true", help="skip QEMU system mode")
     ap.add_argument("--out", default=str(REPO / "reports" / "pil"), help="campaign directory (default reports/pil)")
     ap.add_argument("--report-only", action="store_true", help="rebuild the report from the runs in --out")
+    ap.add_argument("--replace", action="store_true",
+                    help="--out holds a campaign with other settings: delete its runs and start afresh")
     a = ap.parse_args(argv)
     spec = Spec(targets=[t for t in a.targets.split(",") if t], cpu=a.cpu, truth=a.truth, noise=not a.no_noise,
                 checks=not a.no_checks, system_mode=not a.no_system)
@@ -314,13 +318,46 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
         spec.scenarios = ["case1_vbar", "case2_rbar", "case3_rotating"] + [f"random:{i}" for i in range(1, 21)]
     if a.scenarios:
         spec.scenarios = [s for s in a.scenarios.split(",") if s]
-    return spec, Path(a.out), a.report_only
+    return spec, Path(a.out), a.report_only, a.replace
+
+
+def _spec_key(spec: dict) -> dict:
+    """The settings that make two campaigns the same campaign (JSON round trip: tuples become lists)."""
+    return json.loads(json.dumps(spec))
+
+
+def claim(out: Path, spec: Spec, replace: bool = False) -> None:
+    """Make `out` this campaign's folder. A folder holding another campaign (other targets, scenarios,
+    horizons, truth, noise or checks) is refused, unless `replace` deletes its runs: the report of a
+    folder never mixes the runs of two campaigns. The same settings resume (finished runs are reused)."""
+    path = out / "campaign.json"
+    if path.exists():
+        try:
+            old = json.loads(path.read_text()).get("spec")
+        except (json.JSONDecodeError, AttributeError):
+            old = None
+        if old is not None and _spec_key(old) != _spec_key(asdict(spec)):
+            if not replace:
+                diff = sorted(k for k in set(old) | set(asdict(spec)) if _spec_key(old).get(k) != _spec_key(asdict(spec)).get(k))
+                raise CampaignConflict(f"{out} holds a campaign with other settings ({', '.join(diff)} differ): "
+                                       "choose another --out, or pass --replace to delete its runs")
+    elif (out / "runs").exists() and any((out / "runs").rglob("meta.json")) and not replace:
+        raise CampaignConflict(f"{out}/runs holds run records of no known campaign (no campaign.json): "
+                               "choose another --out, or pass --replace to delete them")
+    if replace and (out / "runs").exists():
+        _fresh(out / "runs")
+    out.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"spec": asdict(spec), "status": "running"}, indent=1))
+
+
+class CampaignConflict(Exception):
+    pass
 
 
 def main(argv=None) -> int:
     from qemu import targets
 
-    spec, out, report_only = parse_args(argv)
+    spec, out, report_only, replace = parse_args(argv)
     unknown = [t for t in spec.targets if t not in targets.names()]
     if unknown:
         print(f"unknown target(s) {unknown}; known: {', '.join(targets.names())}", file=sys.stderr)
@@ -339,9 +376,14 @@ def main(argv=None) -> int:
         except Exception as exc:  # a typo in a scenario name must stop the campaign before it starts
             print(f"scenario {label!r}: {exc}", file=sys.stderr)
             return 2
-    out.mkdir(parents=True, exist_ok=True)
+    if not report_only:
+        try:
+            claim(out, spec, replace)
+        except CampaignConflict as exc:
+            print(f"campaign: {exc}", file=sys.stderr)
+            return 2
     camp = Campaign(spec, out)
-    campaign = {"spec": asdict(spec), "targets": {}}
+    campaign = {"spec": asdict(spec), "status": "finished", "targets": {}}
     if not report_only:
         camp.say(f"campaign -> {out}: targets {spec.targets}, scenarios {spec.scenarios}, "
                  f"horizon sets {spec.horizon_sets}")
@@ -353,6 +395,7 @@ def main(argv=None) -> int:
 
             res = osqp_anchor.run(out, opts=("-O2",))
             camp.say(f"OSQP anchor: {res['summary']}")
+        campaign["runs"] = list(dict.fromkeys(camp.owned))
         (out / "campaign.json").write_text(json.dumps(campaign, indent=1))
     from bench import report
 

@@ -30,7 +30,7 @@ Clock: every figure is host time, Python time.monotonic() (CLOCK_MONOTONIC), rea
 server just before nav k is put and again when cmd k has been taken out of the host's inbox
 (run record column round_trip_ms). It includes the host's message encode/decode, both Zenoh stacks,
 TCP on loopback (QEMU's user-mode network stack in system mode) and the flight process's poll loop.
-Under QEMU it is host wall time, not target time (see DESIGN.md section 7): it says how much the
+Under QEMU it is host wall time, not target time (qemu/README.md): it says how much the
 emulated link slows a PIL run, not how long a real board would take. The first `--flight-warmup`
 steps of each run are left out of the statistics (QEMU translates code on first use; the first
 puts carry Zenoh declarations); the cold first step is reported on its own.

@@ -32,16 +32,35 @@ import matplotlib.pyplot as plt  # noqa: E402
 from host_sim.record import load_events, load_run  # noqa: E402
 
 PHASES = {1: "rendezvous", 2: "approach", 3: "docking"}
-# Dissertation ch. 6 (CVXGEN, QEMU ARM, mean emulated solve time, ms) per phase and horizon.
+# A. Fear, Application of Model Predictive Control for the Autonomous Rendezvous and Docking of Small
+# Satellites (PhD dissertation, Georgia Tech, 2023), ch. 6: CVXGEN under QEMU full-system ARM emulation,
+# mean solve wall time [ms] per phase and horizon.
 DISSERTATION_MS = {"rendezvous": {15: 119.18, 30: 270.40, 45: 863.91},
                    "approach": {5: 53.40, 15: 181.55, 30: 394.89},
                    "docking": {5: 9.1, 12: 30.1, 30: 98.8}}
 
 
+def campaign_runs(out: Path) -> list[str] | None:
+    """The run directories (relative to `out`) the campaign in `out` ran or reused, from its
+    campaign.json; None for a folder without one (every record under runs/ is read)."""
+    path = Path(out) / "campaign.json"
+    if not path.exists():
+        return None
+    try:
+        runs = json.loads(path.read_text()).get("runs")
+    except (json.JSONDecodeError, AttributeError):
+        raise SystemExit(f"{path}: not a campaign file (invalid JSON)") from None
+    return None if runs is None else [str(r) for r in runs]
+
+
 def load_campaign(out: Path) -> tuple[list[dict], pd.DataFrame]:
     """All run records under out/runs: (list of meta dicts with 'dir', one DataFrame of every step)."""
     metas, frames = [], []
-    for meta_path in sorted((out / "runs").rglob("meta.json")):
+    paths = sorted((out / "runs").rglob("meta.json"))
+    owned = campaign_runs(out)
+    if owned is not None:  # only this campaign's runs, never those another left in the folder
+        paths = [out / d / "meta.json" for d in owned if (out / d / "meta.json").exists()]
+    for meta_path in paths:
         run_dir = meta_path.parent
         meta, steps = load_run(run_dir)
         meta["dir"] = str(run_dir.relative_to(out))
@@ -199,48 +218,74 @@ def safety_tables(metas: list[dict]) -> tuple[pd.DataFrame, pd.DataFrame]:
     return per_run, table
 
 
-def plot_histograms(rows: pd.DataFrame, target: str, path: Path) -> None:
+def plot_histograms(rows: pd.DataFrame, target: str, path: Path, cpu_label: str) -> None:
+    """Per phase: the estimated target time (top) and the emulated wall time (bottom), one step
+    histogram per horizon, on a log time axis that reaches the deadline (marked) so that the margin
+    is visible; the dissertation's mean CVXGEN QEMU wall time is marked beside our wall times only
+    (the like-for-like pair)."""
     g = rows[rows["target"] == target]
     fig, axes = plt.subplots(2, 3, figsize=(15, 7.5))
     for j, phase in enumerate(("rendezvous", "approach", "docking")):
         gp = g[g["phase_name"] == phase]
-        for i, (col, label) in enumerate((("target_us_nominal", "estimated target time [ms]"),
-                                          ("solve_time_us", "emulated wall time (qemu-user) [ms]"))):
+        deadline_ms = gp["budget_us"].max() / 1e3 if len(gp) else math.nan
+        for i, (col, label) in enumerate((("target_us_nominal", f"estimated target time on {cpu_label} [ms]"),
+                                          ("solve_time_us", "emulated wall time, qemu-user on this host [ms]"))):
             ax = axes[i, j]
             data = [(n, gp[gp["N"] == n][col].to_numpy() / 1e3) for n in sorted(gp["N"].unique())]
+            data = [(n, d[d > 0]) for n, d in data if (d > 0).any()]
             if data:
-                hi = max(d.max() for _, d in data if len(d))
-                bins = np.linspace(0, hi * 1.02 if hi > 0 else 1, 40)
+                lo = min(d.min() for _, d in data)
+                hi = max([d.max() for _, d in data] + ([deadline_ms] if math.isfinite(deadline_ms) else []))
+                bins = np.geomspace(lo / 1.2, hi * 1.2, 60)
                 for n, d in data:
-                    ax.hist(d, bins=bins, histtype="step", linewidth=1.6, label=f"N = {n} ({len(d)})")
-                ax.legend(fontsize=8)
+                    ax.hist(d, bins=bins, histtype="step", linewidth=1.6, label=f"N = {n}: {len(d)} solves")
+                ax.set_xscale("log")
+                ax.minorticks_off()  # labelled minor ticks of a log axis cost seconds each to lay out
+            if math.isfinite(deadline_ms):
+                ax.axvline(deadline_ms, color="tab:red", lw=2, label=f"deadline {_fmt(deadline_ms)} ms (0.5 Ts)")
+            if i == 1:
+                for n, ms in DISSERTATION_MS.get(phase, {}).items():
+                    if n in gp["N"].unique():
+                        ax.axvline(ms, color="k", ls="--", lw=1)
+                        ax.text(ms, 0.97, f" dissertation N = {n}\n mean {_fmt(ms)} ms", transform=ax.get_xaxis_transform(),
+                                fontsize=7, va="top")
+            ax.legend(fontsize=8, loc="center left")
             ax.set_xlabel(label)
-            ax.set_ylabel("solves")
+            ax.set_ylabel("solves per bin")
             if i == 0:
-                ax.set_title(phase)
-    fig.suptitle(f"{target}: solve time per phase and horizon")
+                ax.set_title(f"{phase}: Ts = {_fmt(gp['cmd_period_s'].max())} s" if len(gp) else phase)
+    fig.suptitle(f"{target} ({cpu_label}): time per guidance solve, per phase and horizon N")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 
-def plot_scaling(table: pd.DataFrame, path: Path) -> None:
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+def plot_scaling(table: pd.DataFrame, path: Path, cpu_labels: dict, host_cpu: str) -> None:
+    """Top: QEMU wall times, ours beside the dissertation's (like for like, both host time).
+    Bottom: our estimated target times per CPU with the deadline, a series of their own."""
+    fig, axes = plt.subplots(2, 3, figsize=(15, 8))
     for j, phase in enumerate(("rendezvous", "approach", "docking")):
-        ax = axes[j]
         t = table[table["phase"] == phase]
+        ax, bx = axes[0, j], axes[1, j]
         for target, g in t.groupby("target"):
             g = g.sort_values("N")
-            ax.errorbar(g["N"], g["target_ms_mean"], fmt="o-", label=f"{target} (estimate)")
+            ax.plot(g["N"], g["wall_ms_mean"], "o-", label=f"ours: {cpu_labels.get(target, target)} under qemu-user")
+            bx.plot(g["N"], g["target_ms_mean"], "o-", label=f"{cpu_labels.get(target, target)}: cycle-model estimate")
+            bx.fill_between(g["N"], g["target_ms_mean_low"], g["target_ms_mean_high"], alpha=0.2)
         ref = DISSERTATION_MS[phase]
-        ax.plot(list(ref), list(ref.values()), "ks--", label="dissertation CVXGEN, QEMU wall")
-        ax.set_yscale("log")
-        ax.set_xlabel("horizon N")
-        ax.set_ylabel("mean time per solve [ms]")
-        ax.set_title(phase)
-        ax.legend(fontsize=8)
+        ax.plot(list(ref), list(ref.values()), "ks--", label="dissertation: CVXGEN, QEMU full-system ARM")
+        if len(t):
+            bx.axhline(t["deadline_ms"].max(), color="tab:red", lw=2, label=f"deadline {_fmt(t['deadline_ms'].max())} ms")
+        for x, title in ((ax, "QEMU wall time (host time)"), (bx, "estimated target time")):
+            x.set_yscale("log")
+            x.minorticks_off()
+            x.set_xlabel("horizon N")
+            x.set_ylabel("mean time per solve [ms]")
+            x.set_title(f"{phase}: {title}")
+            x.legend(fontsize=7)
+    fig.suptitle(f"Scaling with the horizon (our wall times: {host_cpu})", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 
@@ -273,14 +318,249 @@ def plot_trajectory(meta: dict, steps: pd.DataFrame, path: Path) -> None:
 
 
 # ---- HTML --------------------------------------------------------------------------------------
-def _table_html(df: pd.DataFrame, floatfmt: str = "{:.3g}") -> str:
+def _fmt(v, digits: int = 3) -> str:
+    """A readable number: `digits` significant figures, never an exponent, thousands grouped
+    (15000 -> "15 000", 0.01234 -> "0.0123", 2 -> "2")."""
+    if v is None or isinstance(v, str):
+        return "" if v is None else v
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    v = float(v)
+    if not math.isfinite(v):
+        return ""
+    if v == 0:
+        return "0"
+    if float(v).is_integer() and abs(v) < 1e15:
+        return f"{int(v):,}".replace(",", "\u2009")
+    decimals = max(0, digits - 1 - int(math.floor(math.log10(abs(v)))))
+    text = f"{v:,.{decimals}f}"
+    if "." in text:  # 0.500 -> 0.5, 2.50 -> 2.5: the significant figures, not padding
+        text = text.rstrip("0").rstrip(".")
+    return text.replace(",", "\u2009")
+
+
+class Cell:
+    """A table cell with its own display text, sort key, hover text, link or CSS class."""
+
+    def __init__(self, text, sort=None, title=None, href=None, cls=None):
+        self.text, self.sort, self.title, self.href, self.cls = text, sort, title, href, cls
+
+
+def _table_html(df: pd.DataFrame, table_id: str | None = None, digits: int = 3, caption: str | None = None) -> str:
+    """A sortable table (click a heading): numbers formatted by `_fmt`, the exact value on hover."""
     def cell(v):
-        if isinstance(v, float):
-            return "" if math.isnan(v) else floatfmt.format(v)
-        return html.escape(str(v))
+        if isinstance(v, Cell):
+            attrs = "" if v.sort is None else f" data-v='{html.escape(str(v.sort))}'"
+            attrs += "" if v.title is None else f" title='{html.escape(str(v.title))}'"
+            attrs += "" if v.cls is None else f" class='{v.cls}'"
+            text = html.escape(str(v.text))
+            if v.href:
+                text = f"<a href='{html.escape(v.href)}'>{text}</a>"
+            return f"<td{attrs}>{text}</td>"
+        if isinstance(v, (bool, np.bool_)):
+            return f"<td>{'yes' if v else 'no'}</td>"
+        if isinstance(v, (int, float, np.integer, np.floating)):
+            if isinstance(v, (float, np.floating)) and not math.isfinite(v):
+                return "<td data-v=''></td>"
+            return f"<td data-v='{float(v)!r}' title='{v!r}'>{html.escape(_fmt(v, digits))}</td>"
+        if v is None:
+            return "<td></td>"
+        return f"<td class='t'>{html.escape(str(v))}</td>"
     head = "".join(f"<th>{html.escape(str(c))}</th>" for c in df.columns)
-    body = "".join("<tr>" + "".join(f"<td>{cell(v)}</td>" for v in row) + "</tr>" for row in df.itertuples(index=False))
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    body = "".join("<tr>" + "".join(cell(v) for v in row) + "</tr>" for row in df.itertuples(index=False))
+    tid = f" id='{table_id}'" if table_id else ""
+    cap = f"<caption>{html.escape(caption)}</caption>" if caption else ""
+    return (f"<div class='scroll'><table class='sortable'{tid}>{cap}<thead><tr>{head}</tr></thead>"
+            f"<tbody>{body}</tbody></table></div>")
+
+
+CSS = """
+body{font-family:system-ui,sans-serif;margin:1.5em auto;max-width:1340px;padding:0 1em;color:#222;line-height:1.4}
+h1{font-size:1.6em}h2{margin-top:1.8em;border-bottom:2px solid #ddd}
+.scroll{max-width:100%;overflow-x:auto}
+table{border-collapse:collapse;font-size:13px;margin:.5em 0}
+caption{text-align:left;font-weight:bold;padding:.3em 0}
+td,th{border:1px solid #ccc;padding:3px 6px;text-align:right;white-space:nowrap}
+td.t{text-align:left}
+th{background:#eee;cursor:pointer;user-select:none}th.asc:after{content:" \25B2"}th.desc:after{content:" \25BC"}
+tbody tr:hover{background:#f4f8ff}
+.pass{color:#080;font-weight:bold}.fail{color:#b00;font-weight:bold}.na{color:#888}
+.verdict{font-size:1.1em;padding:.6em 1em;border-left:6px solid #080;background:#f3fbf3}
+.verdict.bad{border-color:#b00;background:#fdf3f3}
+img{max-width:100%}
+nav a{margin-right:1em}
+"""
+
+# Sortable tables: a click on a heading sorts by that column (numbers by their exact value), a second
+# click reverses. No external script, works offline from file://.
+SCRIPT = """
+(function(){
+  function key(td){var v=td.getAttribute('data-v');if(v!==null&&v!==''&&!isNaN(+v))return +v;return td.textContent.trim().toLowerCase();}
+  document.querySelectorAll('table.sortable').forEach(function(table){
+    var heads=table.tHead.rows[0].cells;
+    Array.prototype.forEach.call(heads,function(th,col){
+      th.title='sort by '+th.textContent;
+      th.addEventListener('click',function(){
+        var asc=!th.classList.contains('asc');
+        Array.prototype.forEach.call(heads,function(h){h.classList.remove('asc','desc');});
+        th.classList.add(asc?'asc':'desc');
+        var body=table.tBodies[0], rows=Array.prototype.slice.call(body.rows);
+        rows.sort(function(a,b){var x=key(a.cells[col]),y=key(b.cells[col]);
+          if(typeof x!==typeof y){x=String(x);y=String(y);} return (x<y?-1:x>y?1:0)*(asc?1:-1);});
+        rows.forEach(function(r){body.appendChild(r);});
+      });
+    });
+  });
+  document.body.setAttribute('data-script','ready');
+})();
+"""
+
+
+def _pf(ok: bool | None) -> Cell:
+    if ok is None:
+        return Cell("n/a", cls="na")
+    return Cell("PASS" if ok else "FAIL", sort=int(bool(ok)), cls="pass" if ok else "fail")
+
+
+def _phase_name(p) -> str:
+    return PHASES.get(p, str(p)) if not isinstance(p, str) else p
+
+
+def verdict_table(rows: pd.DataFrame, metas: list[dict], cpu_labels: dict) -> pd.DataFrame:
+    """One row per target, phase and horizon: the deadline, the worst and p99 estimated target time,
+    the margins, the safety violations of that phase in the runs flown with that horizon, the verdict."""
+    out = []
+    by_dir = {m["dir"]: m for m in metas}
+    for (target, phase, n), g in rows.groupby(["target", "phase_name", "N"], sort=False):
+        deadline_us = g["budget_us"].max()
+        worst = g.loc[g["target_us_high"].idxmax()]
+        p99 = g["target_us_nominal"].quantile(0.99)
+        runs = sorted(set(g["run"]))
+        violations = 0
+        for r in runs:
+            for ep in (by_dir[r].get("safety") or {}).get("episodes", []):
+                if ep.get("kind", "safety_violation") == "safety_violation" and _phase_name(ep.get("phase")) == phase:
+                    violations += 1
+        monitored = all((by_dir[r].get("safety") or {}).get("verdict") for r in runs)
+        misses = int((g["target_us_high"] > g["budget_us"]).sum())
+        fits = bool(worst["target_us_high"] <= deadline_us)
+        safe = (violations == 0) if monitored else None
+        out.append({
+            "target": target, "CPU": cpu_labels.get(target, target), "phase": phase, "N": int(n),
+            "Ts [s]": float(g["cmd_period_s"].max()), "deadline [ms]": deadline_us / 1e3, "solves": len(g),
+            "worst est. [ms]": Cell(_fmt(worst["target_us_high"] / 1e3), sort=worst["target_us_high"] / 1e3,
+                                    title=f"high end of the interval; {worst['run']} step {int(worst['step'])}",
+                                    href=f"{worst['run']}/steps.csv"),
+            "p99 est. [ms]": p99 / 1e3,
+            "margin (worst)": Cell(f"{_fmt(deadline_us / worst['target_us_high'])}\u00d7",
+                                   sort=deadline_us / worst["target_us_high"], title="deadline / worst estimated time"),
+            "margin (p99)": Cell(f"{_fmt(deadline_us / p99)}\u00d7", sort=deadline_us / p99,
+                                 title="deadline / 99th percentile of the nominal estimate"),
+            "misses": misses,
+            "safety": Cell("not monitored", cls="na", title=f"{len(runs)} runs") if safe is None else
+            Cell("safe" if safe else f"{violations} violation(s)", sort=violations, cls="pass" if safe else "fail",
+                 title=f"{len(runs)} runs: " + ", ".join(runs)),
+            "verdict": _pf(fits and safe is not False),
+            "_fits": fits, "_safe": safe, "_margin": deadline_us / worst["target_us_high"],
+            "_margin_p99": deadline_us / p99, "_worst_ms": worst["target_us_high"] / 1e3, "_p99_ms": p99 / 1e3,
+            "_deadline_ms": deadline_us / 1e3, "_violations": violations, "_max_at": f"{worst['run']} step {int(worst['step'])}",
+        })
+    order = {"rendezvous": 0, "approach": 1, "docking": 2}
+    df = pd.DataFrame(out)
+    if df.empty:
+        return df
+    return df.sort_values(["target", "phase", "N"], key=lambda c: c.map(order) if c.name == "phase" else c,
+                          ignore_index=True)
+
+
+def checks_table(chk: dict) -> pd.DataFrame:
+    """The campaign's checks as rows: what was checked, the figure, the limit, pass/fail."""
+    rows = []
+
+    def add(target, what, figure, limit, ok):
+        rows.append({"target": target, "what was checked": what, "figure": figure, "limit": limit, "result": _pf(ok)})
+
+    for t, c in chk.items():
+        for mode, name in (("user", "qemu-user"), ("system", "QEMU system mode")):
+            if f"{mode}_runs_docked" in c:
+                add(t, f"both {name} runs of the ideal Case 1 docked", "docked" if c[f"{mode}_runs_docked"] else "not docked",
+                    "both dock", c[f"{mode}_runs_docked"])
+        for key, what in (("user_instructions", "instructions per solve, two qemu-user runs (plugin)"),
+                          ("user_cyc_cycles_nominal", "cycle-model cycles per solve, two qemu-user runs"),
+                          ("system_solve_time_us", "in-guest solve times, two QEMU system-mode runs (-icount)"),
+                          ("system_instructions", "guest PMU instructions per solve, two system-mode runs")):
+            if c.get(key) == "not measured":
+                add(t, what, "not measured (no counter in this CPU model)", "identical", None)
+            elif f"{key}_identical" in c:
+                n = c.get(f"{key}_compared", 0)
+                same = c.get(f"{key}_steps_identical")
+                fig = (f"{same} of {n} steps identical" if same is not None else f"{n} steps compared, lengths differ")
+                if c.get(f"{key}_max_difference"):
+                    fig += f", largest difference {_fmt(c[f'{key}_max_difference'])}"
+                add(t, what, fig, "every step identical", c[f"{key}_identical"])
+        for mode in ("user", "system"):
+            d = c.get(f"{mode}_dv_minus_native_mps")
+            if d:
+                worst = max((abs(x) for x in d if x is not None), default=math.nan)
+                ok = all(x is not None for x in d) and worst <= 1e-6
+                add(t, f"total delta-v under {'qemu-user' if mode == 'user' else 'system mode'} minus the native build's",
+                    f"{_fmt(worst * 1e3)} mm/s (largest of {len(d)} runs)", "at most 0.001 mm/s", ok)
+        if "block_counts_equal_instruction_counts" in c:
+            add(t, "block profiler total = instruction counter, every priced solve",
+                f"{c.get('block_counts_compared', 0)} solves compared", "equal in every solve",
+                c["block_counts_equal_instruction_counts"])
+    return pd.DataFrame(rows)
+
+
+def _git(*args) -> str | None:
+    try:
+        r = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), *args], capture_output=True,
+                           text=True, timeout=5)
+        return r.stdout.strip() if r.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def host_cpu() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def provenance(metas: list[dict]) -> dict:
+    """Where the figures come from: the commits and dates of the runs and of this report, the flight
+    executables' hashes, the QEMU, compiler and LLVM versions, the host."""
+    import datetime as _dt
+
+    commits = sorted({(m.get("versions") or {}).get("git_commit") for m in metas} - {None})
+    dirty = any((m.get("versions") or {}).get("git_dirty") for m in metas)
+    created = sorted(m.get("created_utc") for m in metas if m.get("created_utc"))
+    exes, compilers = {}, {}
+    for m in metas:
+        if m.get("exe_sha") and m.get("target"):
+            exes[m["target"]] = {"sha256_prefix": m["exe_sha"], "size_bytes": m.get("exe_size_bytes"),
+                                 "arch": m.get("arch"), "cpu": m.get("cpu")}
+        hello = m.get("flight_hello") or {}
+        if hello.get("compiler") and m.get("target"):
+            compilers[m["target"]] = hello["compiler"]
+    qemu = {}
+    for arch in sorted({m.get("arch") for m in metas if m.get("arch")}):
+        tool = {"armhf": "qemu-arm", "aarch64": "qemu-aarch64"}.get(arch, f"qemu-{arch}")
+        qemu[tool] = _tool_version([tool, "--version"])
+    try:
+        from qemu import cycles
+        llvm = cycles.llvm_version()
+    except Exception:  # the report still renders without the cycle model's tools
+        llvm = "unknown"
+    return {"run_commits": commits, "run_tree_dirty": dirty,
+            "runs_from_utc": created[0] if created else None, "runs_to_utc": created[-1] if created else None,
+            "report_commit": _git("rev-parse", "HEAD"), "report_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
+            "executables": exes, "flight_compilers": compilers, "qemu": qemu, "llvm": llvm,
+            "host": platform.platform(), "host_cpu": host_cpu(), "python": sys.version.split()[0]}
 
 
 def _tool_version(cmd: list[str]) -> str:
@@ -398,6 +678,24 @@ def _timing_model_html(out: Path, targets_meta: dict, rows: pd.DataFrame) -> str
     return "\n".join(parts)
 
 
+PHASE_ORDER = ("rendezvous", "approach", "docking")
+
+
+def _cpu_labels(metas: list[dict]) -> dict:
+    """'Cortex-A53 at 1.2 GHz' per target (build name), from the run records."""
+    out = {}
+    for m in metas:
+        t = m.get("target")
+        if t and m.get("cpu") and m.get("clock_hz") and t not in out:
+            cpu = str(m["cpu"]).replace("cortex-", "Cortex-").replace("Cortex-a", "Cortex-A")
+            out[t] = f"{cpu} at {_fmt(m['clock_hz'] / 1e9)} GHz"
+    return out
+
+
+def _link(text, href) -> Cell:
+    return Cell(text, href=href)
+
+
 def write(out: Path) -> Path:
     out = Path(out)
     metas, df = load_campaign(out)
@@ -415,16 +713,19 @@ def write(out: Path) -> Path:
         tel = m.get("flight_telemetry") or {}
         runs.loc[i, "peak_heap_kib"] = tel.get("peak_heap_bytes", math.nan) / 1024 if tel else math.nan
         runs.loc[i, "qemu_max_rss_mib"] = tel.get("max_rss_kb", math.nan) / 1024 if tel else math.nan
+        runs.loc[i, "safety"] = (m.get("safety") or {}).get("verdict")
     runs.to_csv(out / "runs.csv", index=False)
 
+    prov = provenance(metas)
+    cpu_labels = _cpu_labels(metas)
     targets = [t for t in dict.fromkeys(rows["target"])] if not rows.empty else []
     images = []
     for t in targets:
         p = out / f"hist_{t}.png"
-        plot_histograms(rows, t, p)
-        images.append(p.name)
+        plot_histograms(rows, t, p, cpu_labels.get(t, t))
+        images.append((t, p.name))
     if not table.empty:
-        plot_scaling(table, out / "scaling.png")
+        plot_scaling(table, out / "scaling.png", cpu_labels, prov["host_cpu"])
     traj = []
     seen = set()
     for m in metas:
@@ -434,7 +735,7 @@ def write(out: Path) -> Path:
             _, steps = load_run(out / m["dir"])
             p = out / f"trajectory_{label.replace(':', '')}.png"
             plot_trajectory(m, steps, p)
-            traj.append((label, p.name))
+            traj.append((label, m["dir"], p.name))
 
     targets_meta = {}
     for m in metas:
@@ -450,101 +751,224 @@ def write(out: Path) -> Path:
         scaling[f"{target} {phase}"] = {"N": g["N"].tolist(), "mean_ms": g["target_ms_mean"].tolist(),
                                        "ratio_last_first": float(g["target_ms_mean"].iloc[-1] / g["target_ms_mean"].iloc[0])}
     per_run_safety, safety_violations = safety_tables(metas)
-    report = {"stats": table.to_dict(orient="records"), "checks": chk, "scaling": scaling,
+    verdict = verdict_table(rows, metas, cpu_labels) if not rows.empty else pd.DataFrame()
+    check_rows = checks_table(chk)
+    verdict_json = [] if verdict.empty else [
+        {"target": r["target"], "cpu": r["CPU"], "phase": r["phase"], "N": r["N"], "period_s": r["Ts [s]"],
+         "deadline_ms": r["_deadline_ms"], "solves": r["solves"], "worst_target_ms": r["_worst_ms"],
+         "p99_target_ms": r["_p99_ms"], "margin_worst": r["_margin"], "margin_p99": r["_margin_p99"],
+         "misses": r["misses"], "worst_at": r["_max_at"], "safety_violations": r["_violations"],
+         "safety_monitored": r["_safe"] is not None, "fits": r["_fits"],
+         "pass": bool(r["_fits"] and r["_safe"] is not False)} for _, r in verdict.iterrows()]
+    report = {"verdict": verdict_json, "stats": table.to_dict(orient="records"), "checks": chk,
+              "check_table": [{**{k: v for k, v in r.items() if k != "result"}, "result": r["result"].text}
+                              for r in check_rows.to_dict(orient="records")],
+              "scaling": scaling,
               "safety": {"runs": per_run_safety.to_dict(orient="records"),
                          "violations": safety_violations.to_dict(orient="records")},
-              "runs": runs.to_dict(orient="records"),
-              "environment": {"host": platform.platform(), "python": sys.version.split()[0],
+              "runs": runs.to_dict(orient="records"), "provenance": prov,
+              "environment": {"host": prov["host"], "python": prov["python"],
                               "qemu": _tool_version(["qemu-arm", "--version"])}}
     (out / "report.json").write_text(json.dumps(report, indent=1, default=str))
 
-    # HTML
-    parts = ["<!doctype html><meta charset='utf-8'><title>rvd-pil PIL report</title>",
-             "<style>body{font-family:sans-serif;margin:2em;max-width:1400px}table{border-collapse:collapse;"
-             "font-size:12px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:right}th{background:#eee}"
-             "td:first-child,th:first-child{text-align:left}.ok{color:green}.bad{color:#b00}</style>",
-             "<h1>rvd-pil processor-in-the-loop report</h1>",
-             f"<p>{len(metas)} runs, {len(rows)} timed guidance steps. Host {html.escape(platform.platform())}; "
-             f"{html.escape(report['environment']['qemu'])}.</p>",
-             "<h2>Timing model</h2>" + _timing_model_html(out, targets_meta, rows)]
-    parts.append("<h2>Per phase and horizon</h2>")
-    if not table.empty:
-        parts.append("<p>Target times from the cycle model: <i>mean</i> and <i>max</i> are the nominal estimate "
-                     "(steady-state pipeline plus the midpoint of the memory term), <i>[low-high]</i> the interval "
-                     "(steady-state pipeline plus the memory term's low end, to cold pipeline plus its high end). "
-                     "<i>CPI guess</i>: the old instructions &times; CPI / f<sub>clk</sub> figure, beside it during the "
-                     "transition. Deadline misses are counted against the interval's high end.</p>")
-        show = table.copy()
-        show["target ms mean [low-high]"] = [f"{m:.3g} [{lo:.3g}-{hi:.3g}]" for m, lo, hi in
-                                            zip(show["target_ms_mean"], show["target_ms_mean_low"], show["target_ms_mean_high"])]
-        show["target ms max [low-high]"] = [f"{m:.3g} [{lo:.3g}-{hi:.3g}]" for m, lo, hi in
-                                           zip(show["target_ms_max"], show["target_ms_max_low"], show["target_ms_max_high"])]
-        show["cycles max [low-high]"] = [f"{m:.3g} [{lo:.3g}-{hi:.3g}]" for m, lo, hi in
-                                        zip(show["cycles_max"], show["cycles_max_low"], show["cycles_max_high"])]
-        show = show.rename(columns={"target_ms_cpi_mean": "CPI guess ms mean", "target_ms_cpi_max": "CPI guess ms max",
-                                    "cpi_model_mean": "CPI (model)", "l1d_mpki": "L1D misses /1000 insns"})
-        show = show[["target", "phase", "N", "solves", "insns_mean", "insns_max", "cycles_mean", "cycles max [low-high]",
-                     "target ms mean [low-high]", "target_ms_p50", "target_ms_p99", "target ms max [low-high]", "max_at",
-                     "CPI (model)", "L1D misses /1000 insns", "CPI guess ms mean", "CPI guess ms max", "calibrated",
-                     "wall_ms_mean", "wall_ms_max", "iterations_mean", "deadline_ms", "overruns_flight_clock",
-                     "deadline_misses_est", "cpu_load_mean_pct", "cpu_load_max_pct", "dissertation_cvxgen_ms"]]
-        parts.append(_table_html(show))
-    for img in images:
-        parts.append(f"<h3>{html.escape(img)}</h3><img src='{img}' style='max-width:100%'>")
-    if not table.empty:
-        parts.append("<h2>Scaling with the horizon</h2><img src='scaling.png' style='max-width:100%'>")
-        parts.append("<ul>" + "".join(f"<li>{html.escape(k)}: t(N={v['N'][-1]})/t(N={v['N'][0]}) = "
-                                      f"{v['ratio_last_first']:.2f}</li>" for k, v in scaling.items()) + "</ul>")
-    parts.append("<h2>Checks</h2><p>Case 1 in the ideal setting (CW truth, no noise, impulsive burns, no "
-                 "delay). <i>user_instructions</i>: the plugin's counts, two runs under qemu-user. "
-                 "<i>system_solve_time_us</i>: the guest's own clock in QEMU system mode with -icount "
-                 "(2<sup>shift</sup> ns per instruction, the guest kernel's interrupt work included), two runs "
-                 "whose link goes through semihosting so that the guest clock stands still while the host "
-                 "computes (qemu/semihosting_link.py); "
-                 "<i>system_instructions</i>: the guest PMU's user-mode instruction count (QEMU's Cortex-A53 "
-                 "on virt; the A9 model has no PMU). <i>dv_minus_native</i>: total delta-v under QEMU minus "
-                 "the native build's (floating-point differences between instruction sets and libm).</p>")
-    for t, c in chk.items():
-        items = []
-        for k, v in c.items():
-            cls = ""
-            if k.endswith("_identical") or k.endswith("_runs_docked") or k.endswith("_equal_instruction_counts"):
-                cls = "ok" if v else "bad"
-            if k.endswith("_dv_minus_native_mps") and v:
-                cls = "ok" if all(x is not None and abs(x) <= 1e-6 for x in v) else "bad"
-            items.append(f"<li class='{cls}'>{html.escape(k)}: {html.escape(json.dumps(v))}</li>")
-        parts.append(f"<h3>{html.escape(t)}</h3><ul>{''.join(items)}</ul>")
-    per_run, violations = safety_tables(metas)
-    parts.append("<h2>Safety (judged on the truth)</h2><p>The host's safety monitor checks every limit the "
-                 "guidance is meant to hold on the true path, at most 1 s apart and at every burn edge: keep-out "
-                 "sphere outside the approach corridor, approach corridor, overshoot plane, docking cone, "
-                 "|v|<sub>&infin;</sub> in docking, collision, commanded and realised &Delta;v, contact conditions "
-                 "(host_sim/safety.py; limits and their sources in each record's meta.json).</p>")
-    if not per_run.empty:
-        tally = per_run.groupby(["target", "verdict"]).size().rename("runs").reset_index()
-        parts.append(_table_html(tally))
-        if violations.empty:
-            parts.append("<p class='ok'>No violation in any run.</p>")
+    # ---- HTML: the verdict first, then the evidence ------------------------------------------
+    e = html.escape
+    periods = ""
+    deadline_fraction = 0.5
+    if not verdict.empty:
+        per_phase = verdict.groupby("phase", sort=False)["Ts [s]"].max()
+        periods = ", ".join(f"{ph} {_fmt(per_phase[ph])} s" for ph in PHASE_ORDER if ph in per_phase)
+        fr = {(m.get("flight_hello") or {}).get("deadline_fraction") for m in metas if m.get("kind") == "timing"} - {None}
+        deadline_fraction = fr.pop() if len(fr) == 1 else deadline_fraction
+    parts = ["<!doctype html><html lang='en'><head><meta charset='utf-8'>"
+             "<meta name='viewport' content='width=device-width'><title>rvd-pil PIL report</title>"
+             f"<style>{CSS}</style></head><body>",
+             "<h1>Processor-in-the-loop report: does the guidance fit the flight computer, with what margin, "
+             "and is it safe?</h1>",
+             "<nav><a href='#verdict-section'>Verdict</a><a href='#safety'>Safety</a><a href='#checks'>Checks</a>"
+             "<a href='#distributions'>Solve-time distributions</a><a href='#dissertation'>Beside the dissertation</a>"
+             "<a href='#details'>Details</a><a href='#timing-model'>Timing model</a><a href='#runs'>Runs</a>"
+             "<a href='#provenance'>Provenance</a></nav>"]
+    parts.append("<h2 id='verdict-section'>Verdict per target, phase and horizon</h2>")
+    if verdict.empty:
+        parts.append("<p class='verdict bad'>No timed guidance solve in these runs: no verdict.</p>")
+    else:
+        for t, g in verdict.groupby("target", sort=False):
+            ok = bool(g["verdict"].map(lambda c: c.text == "PASS").all())
+            low = g.loc[g["_margin"].idxmin()]
+            safety_t = per_run_safety[per_run_safety["target"] == t] if not per_run_safety.empty else per_run_safety
+            n_safe = int((safety_t["verdict"] != "unsafe").sum()) if len(safety_t) else 0
+            parts.append(
+                f"<p class='verdict{'' if ok else ' bad'}'><b>{e(t)} ({e(cpu_labels.get(t, t))}): "
+                f"{'fits and is safe' if ok else 'does NOT pass'}</b> in {int((g['verdict'].map(lambda c: c.text) == 'PASS').sum())} "
+                f"of {len(g)} phase/horizon cases. Smallest margin {_fmt(low['_margin'])}\u00d7 the worst estimated "
+                f"solve ({e(low['phase'])}, N = {low['N']}: {_fmt(low['_worst_ms'])} ms against a "
+                f"{_fmt(low['_deadline_ms'])} ms deadline); {n_safe} of {len(safety_t)} runs without a safety "
+                "violation (judged on the truth).</p>")
+        parts.append(
+            f"<p><b>Deadline rule</b>: a solve must finish within {_fmt(deadline_fraction)} &times; T<sub>s</sub>, the "
+            f"control period of its phase ({e(periods)}). <b>Worst est.</b>: the largest estimated target time of "
+            "any solve, at the high end of the cycle model's interval (cold pipeline, every cache miss at the high "
+            "penalty); <b>p99 est.</b>: the 99th percentile of the nominal estimate. <b>Margin</b> = deadline "
+            "&divide; time. <b>Misses</b>: solves whose high end exceeds the deadline. <b>Safety</b>: violations of "
+            "this phase's limits in the runs flown with this horizon. <b>PASS</b> = worst estimate within the "
+            "deadline and no safety violation. Estimated, not measured on hardware (see the timing model). "
+            "Click a heading to sort; hover for exact values; the worst time links to its run's steps.</p>")
+        show = verdict[[c for c in verdict.columns if not c.startswith("_") and c != "target"]].copy()
+        show.insert(0, "target", [Cell(t, href=f"#hist-{t}") for t in verdict["target"]])
+        parts.append(_table_html(show, table_id="verdict"))
+
+    parts.append("<h2 id='safety'>Safety verdicts (judged on the truth)</h2><p>The host's safety monitor "
+                 "(<code>host_sim/safety.py</code>) checks every limit the guidance is meant to hold on the true "
+                 "path, at most 1 s apart and at every burn start and end: keep-out sphere outside the approach "
+                 "corridor, approach corridor, overshoot plane, docking cone, |v|<sub>&infin;</sub> in docking, "
+                 "collision, commanded and realised &Delta;v, contact conditions. <i>started unsafe</i>: a random "
+                 "start already inside a limit (the scenario's, not the guidance's). Limits, sources and tolerances "
+                 "are in each run's <code>meta.json</code>.</p>")
+    if per_run_safety.empty:
+        parts.append("<p class='na'>No run carries a safety summary.</p>")
+    else:
+        tally = []
+        for (t, kind), g in per_run_safety.groupby(["target", "kind"], sort=False):
+            v = g["verdict"].value_counts()
+            tally.append({"target": t, "runs": kind, "count": len(g), "safe": int(v.get("safe", 0)),
+                          "started unsafe": int(v.get("started_unsafe", 0)), "unsafe": int(v.get("unsafe", 0)),
+                          "violations": int(g["violations"].fillna(0).sum()),
+                          "excursions within tolerance": int(g["excursions"].fillna(0).sum()),
+                          "verdict": _pf(int(v.get("unsafe", 0)) == 0)})
+        parts.append(_table_html(pd.DataFrame(tally), table_id="safety-table"))
+        if safety_violations.empty:
+            parts.append("<p class='pass'>No violation in any run.</p>")
         else:
-            parts.append("<p class='bad'>Violations per target, phase, scenario and limit, with the worst one:</p>"
-                         + _table_html(violations))
-        parts.append("<details><summary>per run</summary>" + _table_html(per_run) + "</details>")
+            sv = safety_violations.copy()
+            sv["run"] = [Cell(r, href=f"{r}/events.csv") for r in sv["run"]]
+            parts.append("<p class='fail'>Violations per target, phase, scenario and limit, with the worst one:</p>"
+                         + _table_html(sv))
+        pr = per_run_safety.rename(columns={"dock_cone_margin_cm": "docking-cone margin [cm]",
+                                            "closest_axial_approach_m": "closest axial distance in approach [m]",
+                                            "max_speed_docking_mm_s": "max |v|inf in docking [mm/s]"})
+        pr["run"] = [Cell(r, href=f"{r}/meta.json") for r in pr["run"]]
+        parts.append("<details><summary>per run</summary>" + _table_html(pr) + "</details>")
+
+    parts.append("<h2 id='checks'>Checks</h2><p>Case 1 in the ideal setting (CW truth, no noise, impulsive burns, "
+                 "no control delay), natively and twice under QEMU: user mode with the counting plugins, and "
+                 "system mode with <code>-icount</code> (the guest's own clock, 2<sup>shift</sup> ns per "
+                 "instruction, its kernel's interrupt work included; the link goes through semihosting so that the "
+                 "guest clock stands still while the host computes, <code>qemu/semihosting_link.py</code>). "
+                 "Delta-v differences against the native build come from floating point differing between "
+                 "instruction sets and libm.</p>")
+    parts.append(_table_html(check_rows, table_id="checks-table") if not check_rows.empty
+                 else "<p class='na'>No check runs in this campaign.</p>")
+
+    parts.append("<h2 id='distributions'>Solve-time distributions</h2><p>Top row: our estimated target time; bottom "
+                 "row: the emulated wall time of the same solves (host time under qemu-user with the counting "
+                 "plugins attached, which slow emulation), with the dissertation's mean CVXGEN QEMU wall time "
+                 "marked (dashed). The red line is the deadline. Log time axis; one curve per horizon N with "
+                 "its number of solves.</p>")
+    for t, img in images:
+        parts.append(f"<h3 id='hist-{e(t)}'>{e(t)}: {e(cpu_labels.get(t, t))}</h3><img src='{img}' "
+                     f"alt='solve-time histograms for {e(t)}'>")
+
+    parts.append("<h2 id='dissertation'>Beside the dissertation</h2>")
+    if not table.empty:
+        parts.append("<p>Like for like only. The dissertation (A. Fear, <i>Application of Model Predictive Control "
+                     "for the Autonomous Rendezvous and Docking of Small Satellites</i>, PhD dissertation, Georgia "
+                     "Institute of Technology, 2023, ch. 6) reports the mean wall time of CVXGEN solves under QEMU "
+                     "full-system ARM emulation on its host; beside it stand our mean wall times under qemu-user on "
+                     f"this host ({e(prov['host_cpu'])}), the same kind of figure (host time, emulator-dependent). "
+                     "Our estimated target times are a different quantity and stand in their own column and "
+                     "plot row.</p>")
+        cmp_rows = []
+        for _, r in table.iterrows():
+            ref = r["dissertation_cvxgen_ms"]
+            cmp_rows.append({"target": r["target"], "CPU (emulated)": cpu_labels.get(r["target"], r["target"]),
+                             "phase": r["phase"], "N": int(r["N"]),
+                             "dissertation QEMU wall, mean [ms]": ref,
+                             "ours QEMU wall, mean [ms]": r["wall_ms_mean"],
+                             "ratio (dissertation / ours)": ref / r["wall_ms_mean"] if math.isfinite(ref) else math.nan,
+                             "ours QEMU wall, max [ms]": r["wall_ms_max"],
+                             "ours estimated target, mean [ms]": r["target_ms_mean"]})
+        parts.append(_table_html(pd.DataFrame(cmp_rows), table_id="dissertation-table"))
+        parts.append("<img src='scaling.png' alt='solve time against the horizon'>")
+        parts.append("<ul>" + "".join(f"<li>{e(k)}: estimated t(N = {v['N'][-1]}) / t(N = {v['N'][0]}) = "
+                                      f"{_fmt(v['ratio_last_first'])}</li>" for k, v in scaling.items()) + "</ul>")
+
+    parts.append("<h2 id='details'>Details per phase and horizon</h2>")
+    if not table.empty:
+        est = pd.DataFrame({
+            "target": table["target"], "phase": table["phase"], "N": table["N"], "solves": table["solves"],
+            "mean [ms]": [Cell(f"{_fmt(m)} [{_fmt(lo)}\u2013{_fmt(hi)}]", sort=m) for m, lo, hi in
+                          zip(table["target_ms_mean"], table["target_ms_mean_low"], table["target_ms_mean_high"])],
+            "p50 [ms]": table["target_ms_p50"], "p99 [ms]": table["target_ms_p99"],
+            "max [ms]": [Cell(f"{_fmt(m)} [{_fmt(lo)}\u2013{_fmt(hi)}]", sort=m, title=at, href=at.split(" step")[0] + "/steps.csv")
+                         for m, lo, hi, at in zip(table["target_ms_max"], table["target_ms_max_low"],
+                                                  table["target_ms_max_high"], table["max_at"])],
+            "CPI (model)": table["cpi_model_mean"], "L1D misses per 1000 instr.": table["l1d_mpki"],
+            "CPI-guess mean [ms]": table["target_ms_cpi_mean"], "CPU load mean [%]": table["cpu_load_mean_pct"],
+            "CPU load max [%]": table["cpu_load_max_pct"], "calibrated": table["calibrated"]})
+        parts.append("<p>Estimated target times from the cycle model: <i>mean</i> and <i>max</i> are the nominal "
+                     "estimate (steady-state pipeline plus the midpoint of the memory term), in brackets the "
+                     "interval (steady-state pipeline plus the memory term's low end, to cold pipeline plus its "
+                     "high end). <i>CPI guess</i>: the old instructions &times; CPI / f<sub>clk</sub> figure, "
+                     "beside it. CPU load: nominal estimate over the control period.</p>"
+                     + _table_html(est, table_id="estimates-table", caption="Estimated target time"))
+        counts = pd.DataFrame({
+            "target": table["target"], "phase": table["phase"], "N": table["N"],
+            "instructions mean": table["insns_mean"].round(), "instructions max": table["insns_max"],
+            "cycles mean": table["cycles_mean"].round(),
+            "cycles max [low\u2013high]": [Cell(f"{_fmt(m)} [{_fmt(lo)}\u2013{_fmt(hi)}]", sort=m) for m, lo, hi in
+                                           zip(table["cycles_max"], table["cycles_max_low"], table["cycles_max_high"])],
+            "iterations mean": table["iterations_mean"], "iterations max": table["iterations_max"],
+            "QEMU wall mean [ms]": table["wall_ms_mean"], "QEMU wall p99 [ms]": table["wall_ms_p99"],
+            "QEMU wall max [ms]": table["wall_ms_max"],
+            "overruns on the emulated clock": table["overruns_flight_clock"]})
+        parts.append("<p>Instructions: counted by the plugin (exact). QEMU wall: the flight software's own clock "
+                     "under qemu-user (host time); its overruns count solves over the deadline on that clock, a "
+                     "statement about this host, not the target.</p>"
+                     + _table_html(counts, table_id="counts-table", caption="Instructions, cycles, iterations, emulated wall time"))
+
+    parts.append("<h2 id='timing-model'>Timing model</h2>" + _timing_model_html(out, targets_meta, rows))
     parts.append("<h2>Memory and size</h2>")
     if not memory.empty:
-        parts.append(_table_html(memory))
-        parts.append("<p>peak heap: malloc statistics of the flight software; qemu max RSS: the QEMU process "
+        mem = memory.rename(columns={"exe_size_kib": "executable [KiB]", "peak_heap_kib": "peak heap [KiB]",
+                                     "qemu_max_rss_mib": "QEMU max RSS [MiB]"})
+        parts.append(_table_html(mem))
+        parts.append("<p>Peak heap: malloc statistics of the flight software; QEMU max RSS: the QEMU process "
                      "(guest plus emulator), an upper bound.</p>")
     parts.append("<h2>Trajectories</h2>")
-    for label, img in traj:
-        parts.append(f"<h3>{html.escape(label)}</h3><img src='{img}' style='max-width:100%'>")
-    parts.append("<h2>Runs</h2>" + _table_html(runs))
+    for label, d, img in traj:
+        parts.append(f"<h3>{e(label)} (<a href='{e(d)}/meta.json'>run record</a>)</h3><img src='{img}' "
+                     f"alt='trajectory of {e(label)}'>")
+    parts.append("<h2 id='runs'>Runs</h2><p>Each run's record: <code>meta.json</code> (settings, versions, "
+                 "summary, safety), <code>steps.csv</code> (one line per control step), <code>events.csv</code>, "
+                 "<code>flight_sw.log</code>.</p>")
+    rshow = runs.rename(columns={"dir": "run", "scenario_label": "scenario", "t_end_s": "t end [s]",
+                                 "dv_total_mps": "delta-v [m/s]", "exe_size_bytes": "executable [bytes]",
+                                 "peak_heap_kib": "peak heap [KiB]", "qemu_max_rss_mib": "QEMU RSS [MiB]"})
+    rshow["run"] = [Cell(d, href=f"{d}/meta.json") for d in runs["dir"]]
+    rshow.insert(1, "steps.csv", [Cell("steps", href=f"{d}/steps.csv") for d in runs["dir"]])
+    parts.append(_table_html(rshow, table_id="runs-table"))
     events = []
     for m in metas:
         ev = load_events(out / m["dir"])
-        for _, e in ev[ev["kind"].isin(["fault", "flight_software_lost", "collision", "timeout", "rejected_message"])].iterrows():
-            events.append({"run": m["dir"], "t_s": e["t_s"], "kind": e["kind"], "detail": e["detail"]})
+        for _, ev_row in ev[ev["kind"].isin(["fault", "flight_software_lost", "collision", "timeout", "rejected_message"])].iterrows():
+            events.append({"run": Cell(m["dir"], href=f"{m['dir']}/events.csv"), "t [s]": ev_row["t_s"],
+                           "kind": ev_row["kind"], "detail": ev_row["detail"]})
     if events:
         parts.append("<h2>Faults and end events</h2>" + _table_html(pd.DataFrame(events)))
+
+    prow = [("report written", prov["report_utc"]), ("report commit", prov["report_commit"] or "not a git checkout"),
+            ("runs recorded", f"{prov['runs_from_utc']} to {prov['runs_to_utc']}"),
+            ("runs' source commit(s)", ", ".join(prov["run_commits"]) + (" (uncommitted changes)" if prov["run_tree_dirty"] else "")),
+            *[(f"flight executable {t}", f"SHA-256 {x['sha256_prefix']}\u2026, {_fmt(x['size_bytes'])} bytes, "
+               f"{x['arch']} {x['cpu']}") for t, x in prov["executables"].items()],
+            *[(f"flight compiler {t}", c) for t, c in prov["flight_compilers"].items()],
+            *[(k, v) for k, v in prov["qemu"].items()], ("LLVM (llvm-mca)", prov["llvm"]),
+            ("host", f"{prov['host_cpu']}; {prov['host']}; Python {prov['python']}"),
+            ("runs, timed solves", f"{len(metas)} runs, {len(rows)} timed guidance solves")]
+    parts.append("<h2 id='provenance'>Provenance</h2>" + _table_html(pd.DataFrame(prow, columns=["what", "value"]),
+                                                                   table_id="provenance-table"))
+    parts.append(f"<script>{SCRIPT}</script></body></html>")
     index = out / "report.html"
     index.write_text("\n".join(parts))
     return index

@@ -38,9 +38,52 @@ REPO = Path(__file__).resolve().parent.parent
 FLIGHT_EXE_NAME = "rvd_flight_sw"
 
 
+class FlightLaunchError(ValueError):
+    """The flight executable cannot run as asked (missing, not executable, built for another CPU)."""
+
+
+# ELF e_machine values of the architectures the flight software is built for
+ELF_MACHINES = {0x03: "x86 (32-bit)", 0x28: "ARM (32-bit)", 0x3E: "x86-64", 0xB7: "AArch64"}
+HOST_ELF_MACHINE = {"x86_64": 0x3E, "amd64": 0x3E, "aarch64": 0xB7, "arm64": 0xB7, "armv7l": 0x28, "i686": 0x03}
+
+
+def elf_machine(path: Path | str) -> int | None:
+    """The ELF header's e_machine of `path`, None when it is not an ELF file (e.g. a script)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(20)
+    except OSError:
+        return None
+    if len(head) < 20 or head[:4] != b"\x7fELF":
+        return None
+    return int.from_bytes(head[18:20], "little" if head[5] == 1 else "big")
+
+
+def check_runs_here(exe: Path | str) -> None:
+    """Refuse, with the cause, an executable built for another CPU than this host's (it needs a
+    runner such as qemu-arm, which `rvd-run --target` sets up)."""
+    import platform
+
+    machine = elf_machine(exe)
+    host = HOST_ELF_MACHINE.get(platform.machine().lower())
+    if machine is not None and host is not None and machine != host:
+        raise FlightLaunchError(
+            f"{exe} is an {ELF_MACHINES.get(machine, f'ELF machine {machine:#x}')} executable and this host is "
+            f"{ELF_MACHINES.get(host, platform.machine())}: run it under QEMU (rvd-run --target <name>, or "
+            "--runner \"qemu-arm -cpu cortex-a9\")")
+
+
 def find_flight_executable(explicit: Optional[str] = None, name: str = FLIGHT_EXE_NAME) -> Path:
-    """The native flight executable: `explicit`, $RVD_FLIGHT_SW, this checkout's build/native, or PATH."""
-    candidates = [explicit, os.environ.get("RVD_FLIGHT_SW") if name == FLIGHT_EXE_NAME else None,
+    """The native flight executable: `explicit` (which must exist: never replaced by another),
+    $RVD_FLIGHT_SW, this checkout's build/native, or PATH."""
+    if explicit:
+        path = Path(explicit)
+        if not path.is_file():
+            raise FlightLaunchError(f"flight executable {explicit}: no such file")
+        if not os.access(path, os.X_OK):
+            raise FlightLaunchError(f"flight executable {explicit}: not executable")
+        return path
+    candidates = [os.environ.get("RVD_FLIGHT_SW") if name == FLIGHT_EXE_NAME else None,
                   str(REPO / "build" / "native" / "flight_sw" / name), shutil.which(name)]
     for c in candidates:
         if c and Path(c).is_file() and os.access(c, os.X_OK):
@@ -125,7 +168,12 @@ def run_pil(
         cmd = list(flight_command(args))
     else:
         prefix = shlex.split(runner) if isinstance(runner, str) else list(runner)
-        cmd = prefix + [str(find_flight_executable(flight_exe)), *args]
+        exe = find_flight_executable(flight_exe)
+        if not prefix:
+            check_runs_here(exe)
+        elif shutil.which(prefix[0]) is None:
+            raise FlightLaunchError(f"runner {prefix[0]!r}: not found on PATH")
+        cmd = prefix + [str(exe), *args]
 
     run_dir = Path(run_dir) if run_dir else default_run_dir(scen.name)
     record_meta = dict(sim.record_meta())

@@ -4,7 +4,7 @@ apt-get into a private apt state under build/apt.
 A private state leaves the machine's apt configuration alone (no `dpkg --add-architecture`, no
 deb-src entry in /etc/apt), does not contend for the system's apt locks, and lists only the
 architectures we need. Downloads are cached by file name, which carries the package version.
-Tolerated apt pitfalls (../shared/qemu-notes.md): a foreign-architecture security index that fails
+Tolerated apt pitfalls: a foreign-architecture security index that fails
 ("File has unexpected size") and the "_apt couldn't access" warning when downloading as root.
 """
 from __future__ import annotations
