@@ -11,6 +11,8 @@ leaves open, and ours:
   facing the flow, attitude held fixed in LVLH.
 
 `random_scenario(seed)` draws the dissertation's Monte Carlo initial states (section 5.4).
+Obstacles (ellipsoidal keep-out zones) are `[[obstacles]]` tables, checked at load time
+(host_sim.obstacles); a scenario without any has no obstacle anywhere.
 """
 
 from __future__ import annotations

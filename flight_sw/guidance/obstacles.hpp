@@ -8,7 +8,8 @@
 // reads 1 <= 2 (r0 - r_obs)' S (r - r_obs) - (r0 - r_obs)' S (r0 - r_obs). Since f(r0) = 1 this is the
 // tangent plane n' (r - r_obs,i) >= 1 / |E| with E = S (r0 - r_obs), n = E / |E|: the row is unit in r,
 // so its slack is in metres. Since the zone is convex the plane never cuts into it: a plan outside
-// the plane is outside the zone.
+// the plane is outside the zone. The phase QPs put two such rows per obstacle on each stage (its own
+// plane and the next stage's), so that the path between two samples stays out as well (README).
 //
 // Capacity is fixed at compile time (kMaxObstacles); a longer list keeps the obstacles nearest the
 // chaser (distance to the zone's surface along the line to its centre) and counts the rest.
