@@ -66,7 +66,7 @@ def fly(p, obstacles, timeout_s=SCENARIO.timeout_s):
     x, t = CHASER0.copy(), 0.0
     dv2 = dv1 = 0.0
     worst = {o.id: math.inf for o in obstacles}
-    solve_us = []
+    solve_us, xs, dvs = [], [x.copy()], []
     k = 0
     while t < timeout_s and np.linalg.norm(x[:3]) > HOLD_M * 1.02:
         if p.obstacle_capacity:
@@ -82,8 +82,11 @@ def fly(p, obstacles, timeout_s=SCENARIO.timeout_s):
             for o in obstacles:
                 worst[o.id] = min(worst[o.id], field.clearance(o, r, t + tau))
         x, t, k = cw_stm(n, cmd.period_s) @ xp, t + cmd.period_s, k + 1
+        xs.append(x.copy())
+        dvs.append(dv.copy())
     return {"reached": bool(np.linalg.norm(x[:3]) <= HOLD_M * 1.02), "t_s": t, "impulse2_kNs": MASS_KG * dv2 / 1e3,
-            "impulse1_kNs": MASS_KG * dv1 / 1e3, "clearance": worst, "solve_us": np.array(solve_us)}
+            "impulse1_kNs": MASS_KG * dv1 / 1e3, "clearance": worst, "solve_us": np.array(solve_us),
+            "x": np.array(xs), "dv": np.array(dvs)}
 
 
 def main(argv=None) -> int:
