@@ -114,6 +114,9 @@ def _safety_line(safety: dict) -> str:
         figures.append(f"docking-cone margin {-100 * f['max_docking_cone_excursion_m']:+.1f} cm")
     if f.get("max_speed_inf_docking_mps"):
         figures.append(f"max |v|inf in docking {1000 * f['max_speed_inf_docking_mps']:.1f} mm/s")
+    for i, o in (f.get("obstacles") or {}).items():
+        if o["min_clearance"] is not None:
+            figures.append(f"obstacle {i} clearance min {o['min_clearance']:.3f} (>= 1 outside) at t = {o['t_s']:.0f} s")
     return "; ".join([head] + (["worst: " + ", ".join(worst)] if worst else []) + figures)
 
 

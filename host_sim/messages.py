@@ -20,7 +20,7 @@ MAGIC = b'RVD'
 HEADER_SIZE = 16
 TAG_SIZE = 16
 KEY_SIZE = 32
-MAX_MESSAGE_SIZE = 260  # the largest message, tag included
+MAX_MESSAGE_SIZE = 976  # the largest message, tag included
 KEY_ENV = 'RVD_LINK_KEY'  # environment variable with the key as 64 hex digits
 LABEL_HOST_TO_FLIGHT = b'rvd-pil v2 host->flight '
 LABEL_FLIGHT_TO_HOST = b'rvd-pil v2 flight->host '
@@ -34,6 +34,8 @@ KEYS = {
     'cmd': 'rvd/<run>/cmd',
     'telemetry': 'rvd/<run>/telemetry',
     'bye': 'rvd/<run>/bye',
+    'obstacles': 'rvd/<run>/obstacles',
+    'obstacle_status': 'rvd/<run>/obstacle_status',
 }
 
 
@@ -169,7 +171,41 @@ class Bye:
     text: str = ""  # human-readable detail
 
 
-MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Nav, Cmd, Telemetry, Bye,)}
+@dataclass
+class Obstacles:
+    """Obstacles sensed at nav step k (host -> flight, before nav k); slots 0..count-1 are used."""
+
+    TYPE = 16
+    BODY = struct.Struct('<IHHd8I8d24d24d24d32d')
+    step: int = 0  # the nav step these states belong to
+    count: int = 0  # obstacles in this message (0..8)
+    sensed: int = 0  # obstacles the chaser senses (> count: the host sent the nearest 8)
+    t_s: float = 0.0  # simulation time of the states [s]
+    id: tuple[int, ...] = field(default_factory=lambda: (0,) * 8)  # obstacle id per slot
+    t_seen_s: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 8)  # time the obstacle was first sensed [s]
+    position_lvlh_m: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 24)  # centre per slot (x, y, z), LVLH [m]
+    velocity_lvlh_mps: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 24)  # centre velocity per slot, LVLH [m/s]
+    semi_axes_m: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 24)  # semi-axes a, b, c along body x, y, z per slot [m], > 0
+    q_lvlh_body: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 32)  # attitude per slot, quaternion LVLH <- body (w, x, y, z)
+
+
+@dataclass
+class ObstacleStatus:
+    """What the flight software holds of the last obstacles message (flight -> host, before cmd k)."""
+
+    TYPE = 17
+    BODY = struct.Struct('<IHHHHII8I')
+    step: int = 0  # step of the obstacles message this answers
+    received: int = 0  # obstacles in that message
+    held: int = 0  # obstacles the guidance plans around (the nearest, up to its capacity)
+    capacity: int = 0  # obstacles the flight software was built to hold
+    reserved: int = 0  # 0
+    dropped_total: int = 0  # obstacle entries left out for lack of capacity so far
+    rejected_total: int = 0  # obstacles messages or entries rejected (bad shape, attitude) so far
+    held_id: tuple[int, ...] = field(default_factory=lambda: (0,) * 8)  # ids held, nearest first (0 in unused slots)
+
+
+MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Nav, Cmd, Telemetry, Bye, Obstacles, ObstacleStatus,)}
 
 # Field layout per class: (name, kind, count) with kind 'str', 'f64' or 'int'.
 _LAYOUT = {
@@ -178,6 +214,8 @@ _LAYOUT = {
     Cmd: (('step', 'int', 1), ('phase', 'int', 1), ('guidance_status', 'int', 1), ('solver_status', 'int', 1), ('overrun', 'int', 1), ('period_s', 'f64', 1), ('dv_cmd_lvlh_mps', 'f64', 3), ('dv_alloc_lvlh_mps', 'f64', 3), ('pulse_s', 'f64', 6), ('solve_time_us', 'f64', 1), ('step_time_us', 'f64', 1), ('instructions', 'int', 1), ('iterations', 'int', 1), ('reserved', 'int', 1), ('overruns', 'int', 1), ('primal_residual', 'f64', 1), ('dual_residual', 'f64', 1), ('objective', 'f64', 1),),
     Telemetry: (('steps', 'int', 3), ('overruns', 'int', 3), ('mean_solve_us', 'f64', 3), ('max_solve_us', 'f64', 3), ('max_step', 'int', 3), ('reserved', 'int', 1), ('total_instructions', 'int', 3), ('peak_heap_bytes', 'int', 1), ('max_rss_kb', 'int', 1), ('nav_rejected', 'int', 1), ('nav_duplicates', 'int', 1), ('nav_stale', 'int', 1), ('nav_future', 'int', 1), ('nav_coalesced', 'int', 1), ('rx_oversized', 'int', 1), ('rx_untagged', 'int', 1), ('rx_wrong_run', 'int', 1), ('rx_bad_tag', 'int', 1), ('rx_replayed', 'int', 1), ('link_losses', 'int', 1), ('link_resyncs', 'int', 1), ('link_rx_rejected', 'int', 1), ('link_rx_unmatched', 'int', 1),),
     Bye: (('reason', 'int', 1), ('reserved', 'int', 3), ('last_step', 'int', 1), ('text', 'str', 64),),
+    Obstacles: (('step', 'int', 1), ('count', 'int', 1), ('sensed', 'int', 1), ('t_s', 'f64', 1), ('id', 'int', 8), ('t_seen_s', 'f64', 8), ('position_lvlh_m', 'f64', 24), ('velocity_lvlh_mps', 'f64', 24), ('semi_axes_m', 'f64', 24), ('q_lvlh_body', 'f64', 32),),
+    ObstacleStatus: (('step', 'int', 1), ('received', 'int', 1), ('held', 'int', 1), ('capacity', 'int', 1), ('reserved', 'int', 1), ('dropped_total', 'int', 1), ('rejected_total', 'int', 1), ('held_id', 'int', 8),),
 }
 
 

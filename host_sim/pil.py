@@ -163,7 +163,7 @@ def run_pil(
     # --verbose: the flight software notes its events (connects, rejected input, exit) in flight_sw.log.
     # The error model the flight software's navigation filter and margins assume is the scenario's.
     args = ["--connect", flight_endpoint or cfg.endpoint, "--run", cfg.run_id, "--verbose",
-            *error_model_args(sim), *flight_args]
+            *error_model_args(sim), *(["--obstacles", "on"] if sim.scenario.obstacles else []), *flight_args]
     if flight_command is not None:
         cmd = list(flight_command(args))
     else:

@@ -17,6 +17,8 @@ commanded and realised delta-v of every period:
     thrust_realised     always                            realised |dv|_inf > u_max (1 + 3 sigma_w)
     contact_speed       at the docked declaration         |v - v_port| > contact_speed_max_mps
     contact_lateral     at the docked declaration         offset from the docking axis > contact_lateral_max_m
+    obstacle            while the obstacle exists         clearance (r - r_obs)' S (r - r_obs) < 1, per obstacle
+                                                          (magnitude: 1 - clearance; host_sim.obstacles)
 
 The corridors are the guidance's four-sided pyramids (faces h_j = e_j cos(a) - x_body sin(a),
 e_j in {+-y_body, +-z_body}, unit rows, so max_j h_j.p is the distance outside a face in metres):
@@ -76,6 +78,8 @@ LIMIT_SOURCES = {
     "collision": "target body: half the 6U's 0.37 m diagonal plus margin (collision_radius_m)",
     "keepout": "keep-out sphere r1 outside the approach corridor: dissertation sec. 3.1.3, eqs. 3.5-3.6; "
                "tolerance (also corridor, overshoot): 1 mm, the accuracy of the QP solutions at the planes",
+    "obstacle": "ellipsoidal keep-out zone of each obstacle, (r - r_obs)' S (r - r_obs) >= 1 (Dong et al., fast MPC "
+                "with moving obstacle avoidance, eq. 6); magnitude 1 - clearance, no tolerance",
     "approach_corridor": "line-of-sight corridor of the approach phase, 4-sided pyramid: dissertation sec. 3.2, eq. 3.3",
     "overshoot": "overshoot plane r2 of the approach phase (a hard constraint): dissertation eq. 3.9",
     "docking_cone": "docking line-of-sight cone, apex at the port (hard): dissertation eq. 3.12; "
@@ -91,7 +95,7 @@ LIMIT_SOURCES = {
 }
 UNITS = {"collision": "m", "keepout": "m", "approach_corridor": "m", "overshoot": "m", "docking_cone": "m",
          "docking_speed": "m/s", "thrust_command": "m/s", "thrust_realised": "m/s", "contact_speed": "m/s",
-         "contact_lateral": "m"}
+         "contact_lateral": "m", "obstacle": "1"}
 
 
 def pyramid_rows(q_lvlh_body, half_angle_rad: float) -> np.ndarray:
@@ -115,6 +119,7 @@ class _Episode:
     end_step: int = 0
     end_t_s: float = 0.0
     initial: bool = False  # already exceeded at the run's first sample
+    label: str = ""        # which one, for limits that exist several times (e.g. "obstacle id 3")
 
 
 @dataclass
@@ -136,15 +141,18 @@ class SafetyMonitor:
     `attitude(t)` returns the target's host_sim.attitude.TargetState at time t (the truth's)."""
 
     def __init__(self, limits: SafetyLimits, attitude, sigma_w_percent: float = 0.0,
-                 on_event=None):
+                 on_event=None, obstacles=None):
+        """`obstacles`: a host_sim.obstacles.ObstacleField (or None): its clearance is judged too."""
         self.limits = limits
+        self.obstacles = obstacles if obstacles is not None and len(obstacles) else None
         self.attitude = attitude
         self.sigma_w = float(sigma_w_percent) / 100.0
         self.on_event = on_event  # called with (kind, episode) when an episode closes
         self.events: list[_Episode] = []
         self._kinds: list[str] = []
         self._open: dict[str, _Episode] = {}
-        self._stats = {name: _LimitStats() for name in UNITS}
+        # The obstacle limit is judged (and listed) only in runs that have obstacles.
+        self._stats = {name: _LimitStats() for name in UNITS if name != "obstacle" or self.obstacles is not None}
         self._a_app = math.radians(limits.approach_half_angle_deg)
         self._a_dock = math.radians(limits.docking_half_angle_deg)
         # Figures a reviewer asks for even when nothing was violated.
@@ -160,21 +168,29 @@ class SafetyMonitor:
             "contact": None,
             "samples": 0,
         }
+        if self.obstacles is not None:
+            # Per obstacle id: min clearance over the path, and when and where (truth).
+            self.figures["obstacles"] = {str(o.id): {"min_clearance": math.inf, "t_s": None, "step": None,
+                                                     "min_distance_m": math.inf}
+                                         for o in self.obstacles.obstacles}
 
     # -- evaluation --------------------------------------------------------------------------
-    def _exceed(self, limit: str, amount: float, phase: str, step: int, t_s: float, x) -> None:
-        """Record that `limit` is exceeded by `amount` (> 0) at this sample, or ended (<= 0)."""
-        ep = self._open.get(limit)
+    def _exceed(self, limit: str, amount: float, phase: str, step: int, t_s: float, x, key: str | None = None) -> None:
+        """Record that `limit` is exceeded by `amount` (> 0) at this sample, or ended (<= 0). `key`
+        tells apart episodes of one limit that run at once (one per obstacle)."""
+        key = key or limit
+        ep = self._open.get(key)
         if amount > 0.0:
             if ep is None:
-                ep = self._open[limit] = _Episode(limit, phase, step, t_s, initial=self.figures["samples"] <= 1)
+                ep = self._open[key] = _Episode(limit, phase, step, t_s, initial=self.figures["samples"] <= 1,
+                                                label=key.replace(":", " id ") if key != limit else "")
             if amount > ep.worst:
                 ep.worst, ep.worst_t_s, ep.worst_step = amount, t_s, step
                 ep.worst_state = tuple(float(v) for v in x)
             ep.end_step, ep.end_t_s = step, t_s
         elif ep is not None:
             ep.end_step, ep.end_t_s = step, t_s
-            self._close(limit)
+            self._close(key)
 
     def _tolerance(self, limit: str) -> float:
         lim = self.limits
@@ -182,8 +198,9 @@ class SafetyMonitor:
                 "thrust_command": lim.thrust_command_tolerance_mps, "keepout": lim.geometry_tolerance_m,
                 "approach_corridor": lim.geometry_tolerance_m, "overshoot": lim.geometry_tolerance_m}.get(limit, 0.0)
 
-    def _close(self, limit: str) -> None:
-        ep = self._open.pop(limit)
+    def _close(self, key: str) -> None:
+        ep = self._open.pop(key)
+        limit = ep.limit
         st = self._stats[limit]
         if ep.worst <= self._tolerance(limit):
             kind = "safety_excursion"
@@ -237,7 +254,27 @@ class SafetyMonitor:
             f["max_speed_inf_docking_mps"] = max(f["max_speed_inf_docking_mps"], speed)
         self._exceed("docking_cone", cone if in_dock else 0.0, phase, step, t_s, x)
         self._exceed("docking_speed", speed - lim.docking_speed_max_mps if in_dock else 0.0, phase, step, t_s, x)
-        return {"corridor_m": corridor, "axial_m": axial, "dock_cone_m": cone, "speed_inf_mps": speed, "range_m": r}
+        margins = {"corridor_m": corridor, "axial_m": axial, "dock_cone_m": cone, "speed_inf_mps": speed, "range_m": r}
+        if self.obstacles is not None:
+            margins["obstacle_clearance"] = self._sample_obstacles(phase, step, t_s, x)
+        return margins
+
+    def _sample_obstacles(self, phase: str, step: int, t_s: float, x) -> float:
+        """Clearance of every obstacle that exists at t_s; returns the smallest (inf when none)."""
+        worst = math.inf
+        per = self.figures["obstacles"]
+        for o in self.obstacles.obstacles:
+            if not o.exists(t_s):
+                continue
+            d = x[0:3] - o.state(t_s, self.obstacles.n)[0:3]
+            c = float(d @ self.obstacles.shape(o) @ d)
+            f = per[str(o.id)]
+            if c < f["min_clearance"]:
+                f.update(min_clearance=c, t_s=float(t_s), step=int(step))
+            f["min_distance_m"] = min(f["min_distance_m"], float(np.linalg.norm(d)))
+            worst = min(worst, c)
+            self._exceed("obstacle", 1.0 - c, phase, step, t_s, x, key=f"obstacle:{o.id}")
+        return worst
 
     def period(self, phase_code: int, step: int, path_t_s, path_lvlh, dv_cmd_lvlh_mps=None,
                dv_realised_lvlh_mps=None) -> dict:
@@ -245,8 +282,12 @@ class SafetyMonitor:
         margins over the period (for the run record's per-step columns)."""
         worst = {"corridor_m": -math.inf, "axial_m": math.inf, "dock_cone_m": -math.inf, "speed_inf_mps": 0.0,
                  "range_m": math.inf}
+        if self.obstacles is not None:
+            worst["obstacle_clearance"] = math.inf
         for t, x in zip(path_t_s, path_lvlh):
             m = self.sample(phase_code, step, float(t), x)
+            if self.obstacles is not None:
+                worst["obstacle_clearance"] = min(worst["obstacle_clearance"], m["obstacle_clearance"])
             worst["corridor_m"] = max(worst["corridor_m"], m["corridor_m"])
             worst["axial_m"] = min(worst["axial_m"], m["axial_m"])
             worst["dock_cone_m"] = max(worst["dock_cone_m"], m["dock_cone_m"])
@@ -316,7 +357,10 @@ class SafetyMonitor:
                                "tolerance": self._tolerance(name)}
         figures = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                    for k, v in self.figures.items()}
-        episodes = [{"limit": ep.limit, "kind": kind, "phase": ep.phase, "worst": ep.worst, "unit": UNITS[ep.limit],
+        if "obstacles" in figures:
+            figures["obstacles"] = {i: {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                                        for k, v in f.items()} for i, f in figures["obstacles"].items()}
+        episodes = [{"limit": ep.limit, **({"which": ep.label} if ep.label else {}), "kind": kind, "phase": ep.phase, "worst": ep.worst, "unit": UNITS[ep.limit],
                      "worst_step": ep.worst_step, "worst_t_s": ep.worst_t_s, "start_t_s": ep.start_t_s,
                      "end_t_s": ep.end_t_s}
                     for ep, kind in zip(self.events, self._kinds) if kind != "safety_excursion"][:MAX_EPISODES]
@@ -324,12 +368,12 @@ class SafetyMonitor:
                 "excursions": sum(s.excursions for s in self._stats.values()),
                 "initial_violations": sum(s.initial for s in self._stats.values()),
                 "limits": {k: (list(v) if isinstance(v, tuple) else v) for k, v in lim.items()},
-                "sigma_w_percent": 100.0 * self.sigma_w, "sources": dict(LIMIT_SOURCES),
+                "sigma_w_percent": 100.0 * self.sigma_w, "sources": {k: v for k, v in LIMIT_SOURCES.items() if k in self._stats},
                 "per_limit": per_limit, "figures": figures}
 
 
 def describe(kind: str, ep: _Episode, unit: str) -> str:
     """Event detail text of an episode."""
-    return (f"{ep.limit}{' (already at the start)' if ep.initial else ''}: worst {ep.worst:.6g} {unit} at t = {ep.worst_t_s:.2f} s (step {ep.worst_step}, "
+    return (f"{ep.label or ep.limit}{' (already at the start)' if ep.initial else ''}: worst {ep.worst:.6g} {unit} at t = {ep.worst_t_s:.2f} s (step {ep.worst_step}, "
             f"{ep.phase}); from step {ep.start_step} t = {ep.start_t_s:.2f} s to step {ep.end_step} "
             f"t = {ep.end_t_s:.2f} s")

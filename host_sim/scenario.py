@@ -11,6 +11,8 @@ leaves open, and ours:
   facing the flow, attitude held fixed in LVLH.
 
 `random_scenario(seed)` draws the dissertation's Monte Carlo initial states (section 5.4).
+Obstacles (ellipsoidal keep-out zones) are `[[obstacles]]` tables, checked at load time
+(host_sim.obstacles); a scenario without any has no obstacle anywhere.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ import numpy as np
 from . import constants as k
 from .cw import drift_free_velocity
 from .noise import GaussMarkovParams, SensorParams
+from . import obstacles as obstacle_config
+from .obstacles import Obstacle
 from .safety import SafetyLimits
 from .thrusters import ThrusterParams
 
@@ -103,10 +107,15 @@ class Scenario:
     thrust_error: GaussMarkovParams = field(default_factory=GaussMarkovParams)
     sensors: SensorParams = field(default_factory=SensorParams)
     safety: SafetyLimits = field(default_factory=SafetyLimits)
+    obstacles: tuple[Obstacle, ...] = ()  # ellipsoidal keep-out zones ([[obstacles]]; host_sim.obstacles)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain dict (JSON-ready) of every parameter, for run records."""
-        return _plain(dataclasses.asdict(self))
+        """Plain dict (JSON-ready) of every parameter, for run records. No obstacles: no "obstacles"
+        key, so that records and content keys of obstacle-free scenarios stay what they were."""
+        d = _plain(dataclasses.asdict(self))
+        if not self.obstacles:
+            del d["obstacles"]
+        return d
 
     def replace(self, **changes) -> "Scenario":
         """Copy with top-level fields replaced (e.g. chaser=dataclasses.replace(s.chaser, ...))."""
@@ -122,7 +131,7 @@ _SECTIONS = {
     "sensors": SensorParams,
     "safety": SafetyLimits,
 }
-_TOP_LEVEL = {"name", "description", "timeout_s"}
+_TOP_LEVEL = {"name", "description", "timeout_s", "obstacles"}
 
 
 def _plain(obj):
@@ -179,8 +188,13 @@ def from_dict(data: dict[str, Any], source: str = "<dict>") -> Scenario:
         if not isinstance(table, dict):
             raise ScenarioError(f"{source}: [{section}] must be a table")
         parts[section] = _build_section(cls, table, f"{source} [{section}]")
+    try:
+        obstacles = obstacle_config.parse(data.get("obstacles", []), source)
+    except obstacle_config.ObstacleError as exc:
+        raise ScenarioError(str(exc)) from None
     scenario = Scenario(name=str(data["name"]), description=str(data.get("description", "")),
-                        timeout_s=_number(data.get("timeout_s", 12000.0), f"{source} timeout_s"), **parts)
+                        timeout_s=_number(data.get("timeout_s", 12000.0), f"{source} timeout_s"), obstacles=obstacles,
+                        **parts)
     validate(scenario, source)
     return scenario
 
@@ -243,6 +257,13 @@ def validate(s: Scenario, source: str = "<scenario>") -> None:
     for name in ("thrust_error_sigmas", "geometry_tolerance_m", "docking_cone_tolerance_m", "docking_speed_tolerance_mps",
                  "thrust_command_tolerance_mps"):
         need(getattr(sf, name) >= 0.0, f"safety {name} must be >= 0, got {getattr(sf, name)}")
+    if s.obstacles:
+        try:
+            obstacle_config.validate(s.obstacles, chaser_position_lvlh_m=s.chaser.position_lvlh_m,
+                                     target_radius_m=sf.collision_radius_m,
+                                     mean_motion_rad_s=s.orbit.mean_motion_rad_s, source=source)
+        except obstacle_config.ObstacleError as exc:
+            raise ScenarioError(str(exc)) from None
 
 
 def random_scenario(seed: int, base: str | Scenario = "case1_vbar", *, range_m: tuple[float, float] = (150.0, 2500.0),

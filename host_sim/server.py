@@ -35,6 +35,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from host_sim import messages as msg
+from host_sim.obstacles import ObstacleField
 from host_sim.safety import UNITS as SAFETY_UNITS, SafetyMonitor, describe as describe_safety_episode
 
 PHASE_NAMES = {1: "rendezvous", 2: "approach", 3: "docking", 4: "docked"}
@@ -48,6 +49,39 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind((host, 0))
         return s.getsockname()[1]
+
+
+#: Obstacle slots of one obstacles message (schema/rvd_messages.toml).
+OBSTACLE_SLOTS = 8
+
+
+def obstacles_message(field: ObstacleField, step: int, t_s: float, chaser_lvlh_m) -> msg.Obstacles:
+    """What the chaser senses at t_s as the obstacles message of step k: the nearest OBSTACLE_SLOTS
+    (distance to the zone's surface along the line to its centre), their true states (the sensor
+    model is exact), shapes and first-seen times."""
+    chaser = np.asarray(chaser_lvlh_m, float)
+    seen = field.sensed(t_s, chaser)
+
+    def surface_distance(item):
+        o, x, _ = item
+        d = chaser - x[0:3]
+        scaled = math.sqrt(max(float(d @ field.shape(o) @ d), 0.0))
+        return float(np.linalg.norm(d)) * (1.0 - 1.0 / scaled) if scaled > 0.0 else -min(o.semi_axes_m)
+
+    nearest = sorted(seen, key=surface_distance)[:OBSTACLE_SLOTS]
+    pad = OBSTACLE_SLOTS - len(nearest)
+    ids, seen_t, pos, vel, axes, q = [], [], [], [], [], []
+    for o, x, first in nearest:
+        ids.append(int(o.id))
+        seen_t.append(float(first))
+        pos += [float(v) for v in x[0:3]]
+        vel += [float(v) for v in x[3:6]]
+        axes += [float(v) for v in o.semi_axes_m]
+        q += [float(v) for v in np.asarray(o.q_lvlh_body, float) / np.linalg.norm(o.q_lvlh_body)]
+    return msg.Obstacles(step=int(step), count=len(nearest), sensed=len(seen), t_s=float(t_s),
+                         id=tuple(ids + [0] * pad), t_seen_s=tuple(seen_t + [0.0] * pad),
+                         position_lvlh_m=tuple(pos + [0.0] * 3 * pad), velocity_lvlh_mps=tuple(vel + [0.0] * 3 * pad),
+                         semi_axes_m=tuple(axes + [0.0] * 3 * pad), q_lvlh_body=tuple(q + [0.0] * 4 * pad))
 
 
 @dataclass
@@ -107,7 +141,8 @@ class ZenohLink:
         # subscriber its own Python thread, which reorders messages across keys (a bye overtaking
         # the telemetry sent before it); the flight side's order is part of the protocol.
         # allowed_origin REMOTE: the host's own bye (same key) is not delivered back to it.
-        for kind, cls in (("hello", msg.Hello), ("cmd", msg.Cmd), ("telemetry", msg.Telemetry), ("bye", msg.Bye)):
+        for kind, cls in (("hello", msg.Hello), ("cmd", msg.Cmd), ("telemetry", msg.Telemetry), ("bye", msg.Bye),
+                          ("obstacle_status", msg.ObstacleStatus)):
             self._subs.append(self.session.declare_subscriber(
                 msg.key(kind, self.run_id),
                 z.handlers.Callback(lambda sample, kind=kind, cls=cls: self._on_sample(sample, kind, cls),
@@ -232,6 +267,7 @@ class RunSummary:
     stale_commands: int = 0             # cmds for an older step (duplicate_commands included)
     duplicate_commands: int = 0         # cmds for the step just applied (the answer to a resent nav)
     future_commands: int = 0            # cmds for a step not asked for yet
+    obstacle_status: Optional[object] = None  # the flight software's newest ObstacleStatus (runs with obstacles)
     invalid_commands: int = 0           # authentic cmds outside the declared limits: flight faults
     discarded: dict = field(default_factory=dict)          # host side, by kind (DISCARD_KINDS)
     flight_discarded: dict = field(default_factory=dict)   # flight side, from its last telemetry
@@ -346,7 +382,10 @@ class PilServer:
         self._stop = threading.Event()
         self._rejection_events: dict[str, int] = {}
         sigma_w = math.sqrt(sim.scenario.thrust_error.steady_state_covariance()[0, 0])
-        self.safety = SafetyMonitor(sim.scenario.safety, sim.target_state, sigma_w, on_event=self._safety_event)
+        # The scenario's obstacles, moving with the truth's mean motion (host_sim.obstacles).
+        self.obstacles = ObstacleField(sim.scenario.obstacles, sim.mean_motion_rad_s)
+        self.safety = SafetyMonitor(sim.scenario.safety, sim.target_state, sigma_w, on_event=self._safety_event,
+                                    obstacles=self.obstacles)
 
     # -- helpers -----------------------------------------------------------------------------------
     def event(self, kind: str, detail: str = "", step: Optional[int] = None) -> None:
@@ -389,6 +428,8 @@ class PilServer:
             self.event("hello", f"{message.arch} {message.cpu_model} session {message.session}")
         elif isinstance(message, msg.Telemetry):
             self._take_telemetry(message)
+        elif isinstance(message, msg.ObstacleStatus):
+            self._take_obstacle_status(message)
         elif isinstance(message, (msg.Cmd, msg.Bye, InvalidMessage)):
             return message
         return None
@@ -402,6 +443,22 @@ class PilServer:
             self.event("flight_discarded", ", ".join(f"{f} +{d}" for f, d in grew.items()))
         self.summary.telemetry = t
         self.summary.flight_discarded = now
+
+    def _take_obstacle_status(self, st) -> None:
+        """Keep the newest; an event whenever what the flight software holds changes."""
+        before = self.summary.obstacle_status
+        held = tuple(st.held_id[:st.held])
+        if before is None or held != tuple(before.held_id[:before.held]) or st.dropped_total != before.dropped_total \
+                or st.rejected_total != before.rejected_total:
+            self.event("flight_obstacles",
+                       f"holds {st.held} of {st.received} (capacity {st.capacity}): ids {list(held)}; dropped "
+                       f"{st.dropped_total}, rejected {st.rejected_total} so far", step=st.step)
+        self.summary.obstacle_status = st
+
+    def _put_obstacles(self, k: int, t_s: float) -> None:
+        """The obstacles message of step k, before its nav (only in scenarios with obstacles)."""
+        if len(self.obstacles):
+            self.link.put("obstacles", obstacles_message(self.obstacles, k, t_s, self.sim.truth_lvlh()[0:3]))
 
     # After the flight process has exited, what it sent last (its bye) may still be in Zenoh's
     # receive path: wait this long with an empty inbox before calling the flight software lost.
@@ -513,6 +570,7 @@ class PilServer:
                 self.summary.nav_resends += 1
                 self.event("nav_resend", f"no cmd {k} within {cfg.cmd_timeout_s:g} s, attempt {attempt}", step=k)
             if not cfg.drop_nav(k, attempt):
+                self._put_obstacles(k, nav.t_s)
                 self.link.put("nav", nav)
             cmd = self._wait_for_cmd(k, time.monotonic() + cfg.cmd_timeout_s)
             if cmd is not None:
@@ -557,6 +615,7 @@ class PilServer:
                 cmd, attempts = self._exchange_lockstep(k, nav)
             else:
                 if not cfg.drop_nav(k, 0):
+                    self._put_obstacles(k, nav.t_s)
                     self.link.put("nav", nav)
                 cmd, attempts = self._wait_for_cmd(k, wall0 + (sim.t_s + last_period) / cfg.speedup), 1
             rtt_ms = (time.monotonic() - t_put) * 1e3

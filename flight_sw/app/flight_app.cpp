@@ -236,6 +236,7 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   in.q_lvlh_body = Eigen::Quaterniond(nav.q_lvlh_body[0], nav.q_lvlh_body[1], nav.q_lvlh_body[2], nav.q_lvlh_body[3]);
   in.omega_body_rad_s = Eigen::Vector3d(nav.omega_body_rad_s[0], nav.omega_body_rad_s[1], nav.omega_body_rad_s[2]);
 
+  if (have_obstacles_) take_obstacles(in.x_lvlh.head<3>());
   const int phase_before = phase_index(guidance_->phase());
   const double budget_us = cfg_.deadline_fraction * cfg_.guidance.phase(guidance_->phase()).Ts_s * 1e6;
   guidance::Command c = guidance_->step(in, std::max(budget_us - filter_us, 1e-3));  // > 0: a budget
@@ -280,6 +281,65 @@ void FlightApp::receive_nav(const uint8_t* data, size_t size) {
   if (have_nav_) ++dropped_.coalesced;  // the previous one was never handled
   pending_nav_ = nav;
   have_nav_ = true;
+}
+
+void FlightApp::receive_obstacles(const uint8_t* data, size_t size) {
+  msg::Obstacles m;
+  const msg::Error e = msg::receive(auth_, data, size, m);
+  if (e != msg::Error::None) {
+    note_drop("obstacles", e, size);
+    return;
+  }
+  if (m.count > m.id.size()) {  // more than the message holds: its own fault, not adopted
+    ++obstacles_rejected_;
+    note("obstacles for step %u refused: count %u > %zu slots", m.step, m.count, m.id.size());
+    return;
+  }
+  pending_obstacles_ = m;
+  have_obstacles_ = true;
+}
+
+void FlightApp::take_obstacles(const Eigen::Vector3d& chaser_lvlh_m) {
+  const msg::Obstacles& m = pending_obstacles_;
+  std::array<guidance::Obstacle, 8> list{};
+  static_assert(sizeof(m.id) / sizeof(m.id[0]) == 8, "one guidance::Obstacle per slot");
+  for (int k = 0; k < m.count; ++k) {
+    guidance::Obstacle& o = list[k];
+    o.id = m.id[k];
+    o.t_state_s = m.t_s;
+    o.t_seen_s = m.t_seen_s[k];
+    for (int j = 0; j < 3; ++j) {
+      o.position_lvlh_m(j) = m.position_lvlh_m[3 * k + j];
+      o.velocity_lvlh_mps(j) = m.velocity_lvlh_mps[3 * k + j];
+      o.semi_axes_m(j) = m.semi_axes_m[3 * k + j];
+    }
+    o.q_lvlh_body = Eigen::Quaterniond(m.q_lvlh_body[4 * k], m.q_lvlh_body[4 * k + 1], m.q_lvlh_body[4 * k + 2],
+                                       m.q_lvlh_body[4 * k + 3]);
+  }
+  const uint32_t dropped_before = guidance_->obstacles().dropped_total;
+  guidance_->set_obstacles(list.data(), m.count, m.t_s, chaser_lvlh_m);
+  // The host sensed more than it could send: those are dropped too, for lack of wire capacity.
+  if (m.sensed > m.count) guidance_->count_dropped_obstacles(m.sensed - m.count);
+  if (guidance_->obstacles().dropped_total != dropped_before)
+    note("obstacles step %u: %u sensed, holding the nearest %d (capacity %d)", m.step, m.sensed,
+         guidance_->obstacles().count, cfg_.guidance.obstacle_capacity);
+  obstacles_step_ = m.step;
+  obstacles_received_ = m.sensed > m.count ? m.sensed : m.count;
+  have_obstacles_ = false;
+  obstacle_status_due_ = true;
+}
+
+msg::ObstacleStatus FlightApp::obstacle_status() const {
+  const guidance::ObstacleSet& set = guidance_->obstacles();
+  msg::ObstacleStatus s;
+  s.step = obstacles_step_;
+  s.received = static_cast<uint16_t>(std::min<uint32_t>(obstacles_received_, UINT16_MAX));
+  s.held = static_cast<uint16_t>(set.count);
+  s.capacity = static_cast<uint16_t>(cfg_.guidance.obstacle_capacity);
+  s.dropped_total = set.dropped_total;
+  s.rejected_total = set.rejected_total + obstacles_rejected_;
+  for (int k = 0; k < set.count && k < static_cast<int>(s.held_id.size()); ++k) s.held_id[k] = set.items[k].id;
+  return s;
 }
 
 void FlightApp::receive_bye(const uint8_t* data, size_t size) {
@@ -331,6 +391,7 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
   session_ = std::make_unique<link::ZenohSession>(zc);
   session_->declare_subscriber(key("nav"), [this](const link::Sample& s) { receive_nav(s.payload, s.size); });
   session_->declare_subscriber(key("bye"), [this](const link::Sample& s) { receive_bye(s.payload, s.size); });
+  session_->declare_subscriber(key("obstacles"), [this](const link::Sample& s) { receive_obstacles(s.payload, s.size); });
   link::LinkStatus st = session_->open();
   note("connecting to %s: %s%s%s", cfg_.endpoint.c_str(), link::to_string(st),
        st == link::LinkStatus::Ok ? "" : ": ", st == link::LinkStatus::Ok ? "" : session_->last_error().c_str());
@@ -359,6 +420,8 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
     if (auto nav = take_nav()) {
       t_last_nav = Clock::now();
       if (auto cmd = handle_nav(*nav)) {
+        if (obstacle_status_due_) publish_msg("obstacle_status", obstacle_status());
+        obstacle_status_due_ = false;
         publish_msg("cmd", *cmd);
         if (++answered % static_cast<uint32_t>(std::max(cfg_.telemetry_every, 1)) == 0)
           publish_msg("telemetry", telemetry());

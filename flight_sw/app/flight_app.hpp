@@ -130,6 +130,10 @@ class FlightApp {
   // counted as coalesced), a genuine bye ends the run.
   void receive_nav(const uint8_t* data, size_t size);
   void receive_bye(const uint8_t* data, size_t size);
+  // An obstacles message: checked like a nav, kept until the next nav is handled, which gives it
+  // to the guidance (the nearest it can hold) before its step; obstacle_status() then says what it holds.
+  void receive_obstacles(const uint8_t* data, size_t size);
+  msg::ObstacleStatus obstacle_status() const;
   // Takes the pending nav, if any.
   std::optional<msg::Nav> take_nav();
   bool bye_received() const { return bye_received_; }
@@ -155,6 +159,10 @@ class FlightApp {
   msg::Nav pending_nav_{};
   bool have_nav_ = false;
   bool bye_received_ = false;
+  msg::Obstacles pending_obstacles_{};
+  bool have_obstacles_ = false, obstacle_status_due_ = false;
+  uint32_t obstacles_step_ = 0, obstacles_received_ = 0, obstacles_rejected_ = 0;
+  void take_obstacles(const Eigen::Vector3d& chaser_lvlh_m);
   InputCounters dropped_;
   uint32_t drops_noted_ = 0;
   uint32_t overruns_ = 0;

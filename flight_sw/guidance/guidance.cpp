@@ -41,6 +41,32 @@ Guidance::Guidance(const GuidanceParams& params) : params_(params), x0_(solver::
     longest = std::max(longest, qps_[k]->N());
   }
   plan_.assign(longest, Eigen::Vector3d::Zero());
+  predicted_.assign(longest + 1, Eigen::Vector3d::Zero());
+  if (params_.obstacle_capacity > 0)
+    for (auto* set : {&qps_, &recovery_qps_})
+      for (auto& qp : *set) qp->set_obstacles(&obstacles_, 0.0, predicted_.data());
+}
+
+void Guidance::set_obstacles(const Obstacle* list, int n, double t_s, const Eigen::Vector3d& chaser_lvlh_m) {
+  select_obstacles(list, n, chaser_lvlh_m, t_s, params_.mean_motion_rad_s(), params_.obstacle_prediction, obstacles_);
+  if (params_.obstacle_capacity == 0) {  // built without obstacle rows: nothing is held
+    obstacles_.dropped_total += static_cast<uint32_t>(obstacles_.count);
+    obstacles_.count = 0;
+  }
+}
+
+// Where the previous plan (what is left of it, then coasting) takes the chaser from x over the phase's
+// horizon: the points the obstacle rows are linearized about.
+void Guidance::predict_positions(const PhaseQp& qp, const Vector6d& x) {
+  Vector6d xi = x;
+  predicted_[0] = xi.head<3>();
+  const bool have_plan = plan_phase_ == phase_ && plan_next_ < plan_len_;
+  for (int i = 0; i < qp.N(); ++i) {
+    const int j = plan_next_ + i;
+    const Eigen::Vector3d u = have_plan && j < plan_len_ ? plan_[j] : Eigen::Vector3d::Zero();
+    xi = qp.A() * xi + qp.B() * u;
+    predicted_[i + 1] = xi.head<3>();
+  }
 }
 
 Guidance::~Guidance() = default;
@@ -124,13 +150,14 @@ void Guidance::fall_back(Command& cmd) {
 }
 
 bool Guidance::solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Vector6d& x,
-                               const TargetState& target, const EstimateQuality& quality,
+                               const TargetState& target, const EstimateQuality& quality, double t_s,
                                double budget_left_us, solver::Info& info) {
   if (budget_left_us < 0.0) {  // the step's budget is spent already
     info = solver::Info{};
     info.status = solver::Status::TimeLimit;
     return false;
   }
+  if (params_.obstacle_capacity > 0) qp.set_obstacles(&obstacles_, t_s, predicted_.data());
   qp.build(x, target, quality);
   x0_ = x;
   sol.settings().time_limit_us = budget_left_us;
@@ -193,12 +220,13 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
         return left > 0.0 ? left : -1.0;
       };
       cmd.solved = left_us() >= 0.0;
-      bool usable = solve_into_plan(*qps_[k], *solvers_[k], x, target, nav.quality, left_us(), cmd.solver);
+      if (params_.obstacle_capacity > 0) predict_positions(*qps_[k], x);  // before a new plan replaces it
+      bool usable = solve_into_plan(*qps_[k], *solvers_[k], x, target, nav.quality, nav.t_s, left_us(), cmd.solver);
       if (usable) {
         cmd.status = StepStatus::Ok;
       } else if (cmd.solver.status == solver::Status::Infeasible && params_.recovery) {
-        usable = solve_into_plan(*recovery_qps_[k], *recovery_solvers_[k], x, target, nav.quality, left_us(),
-                                 cmd.recovery);
+        usable = solve_into_plan(*recovery_qps_[k], *recovery_solvers_[k], x, target, nav.quality, nav.t_s,
+                                 left_us(), cmd.recovery);
         if (usable) cmd.status = StepStatus::Recovered;
       }
       if (usable) {

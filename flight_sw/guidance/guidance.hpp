@@ -82,6 +82,13 @@ class Guidance {
   // the checks and the QP build left of it, and a solve that runs out yields the shifted previous plan.
   Command step(const NavInput& nav, double time_limit_us = 0.0);
 
+  // The obstacles sensed now (list[0..n), states at their own t_state_s): the nearest
+  // params.obstacle_capacity of them are planned around from the next step on (obstacles.hpp), the
+  // rest counted as dropped, unusable entries as rejected. Allocates nothing.
+  void set_obstacles(const Obstacle* list, int n, double t_s, const Eigen::Vector3d& chaser_lvlh_m);
+  const ObstacleSet& obstacles() const { return obstacles_; }
+  void count_dropped_obstacles(uint32_t n) { obstacles_.dropped_total += n; }  // left out before they got here
+
   Phase phase() const { return phase_; }
   const GuidanceParams& params() const { return params_; }
   const PhaseQp& phase_qp(Phase p, bool recovery = false) const;             // as last built
@@ -99,7 +106,7 @@ class Guidance {
   void fall_back(Command& cmd);
   // Build and solve one QP within what is left of the budget; on success keep its plan.
   bool solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Vector6d& x, const TargetState& target,
-                       const EstimateQuality& u, double budget_left_us, solver::Info& info);
+                       const EstimateQuality& u, double t_s, double budget_left_us, solver::Info& info);
 
   GuidanceParams params_;
   Phase phase_ = Phase::Rendezvous;
@@ -110,6 +117,9 @@ class Guidance {
   int plan_len_ = 0, plan_next_ = 0;
   Phase plan_phase_ = Phase::Rendezvous;
   SolveObserver* observer_ = nullptr;
+  ObstacleSet obstacles_;
+  std::vector<Eigen::Vector3d> predicted_;  // linearization points, stages 0..N (capacity: longest N + 1)
+  void predict_positions(const PhaseQp& qp, const Vector6d& x);
 };
 
 // The dissertation's scenarios (Table 3.2; sec 3.6): 1 V-bar, 2 R-bar, 3 rotating target (spin about body z).

@@ -111,6 +111,10 @@ std::string GuidanceParams::validate() const {
     err << "max_range_m, max_speed_mps, max_spin_rad_s must be > 0; ";
   if (!positive(recovery_weight) || !nonnegative(recovery_quadratic) || !positive(recovery_speed_factor))
     err << "recovery_weight and recovery_speed_factor must be > 0, recovery_quadratic >= 0; ";
+  if (!(obstacle_capacity == 0 || obstacle_capacity == kMaxObstacles))
+    err << "obstacle_capacity must be 0 or " << kMaxObstacles << "; ";
+  if (!nonnegative(obstacle_margin_m) || !positive(obstacle_penalty) || !nonnegative(obstacle_penalty_quadratic))
+    err << "obstacle_margin_m and obstacle_penalty_quadratic must be >= 0, obstacle_penalty > 0; ";
   if (!nonnegative(max_iter_accept_residual)) err << "max_iter_accept_residual must be >= 0; ";
   if (!(margins.input_fraction >= 0.0 && margins.input_fraction < 1.0)) err << "margins.input_fraction must be in [0, 1); ";
   if (!(margins.plan_reserve_fraction >= 0.0 && margins.plan_reserve_fraction < 1.0))

@@ -10,6 +10,7 @@
 
 #include "flight_sw/guidance/allocation.hpp"
 #include "flight_sw/guidance/cw.hpp"
+#include "flight_sw/guidance/obstacles.hpp"
 #include "flight_sw/solver/ocp_qp.hpp"
 
 namespace rvd::guidance {
@@ -134,6 +135,17 @@ struct GuidanceParams {
   double recovery_speed_factor = 10.0;  // the docking |v|_inf rows' penalty is this many times the cone's
   // A solve that stopped at the iteration cap is used when its primal residual is this small.
   double max_iter_accept_residual = 1e-6;
+
+  // Obstacles (obstacles.hpp): rows for this many keep-out zones on stages 1..N of every phase QP,
+  // 0 (the default) or kMaxObstacles. With 0 the QPs are the dissertation's, and obstacle lists are
+  // only counted. Each row is soft: obstacle_penalty per metre inside the linearized zone's tangent
+  // plane plus obstacle_penalty_quadratic per metre squared (the zone may be out of reach of the
+  // thrusters; the plan then gets as far out as it can instead of the QP being infeasible).
+  int obstacle_capacity = 0;
+  double obstacle_margin_m = 0.0;  // every zone grown by this, plus estimate_sigmas x the position sigma
+  double obstacle_penalty = 1e4;
+  double obstacle_penalty_quadratic = 10.0;
+  ObstaclePrediction obstacle_prediction = ObstaclePrediction::ConstantVelocity;
 
   Margins margins;
   // The thrusters burn for a finite time: the prediction models each period's delta-v as an impulse at

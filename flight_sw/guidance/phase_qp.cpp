@@ -49,6 +49,11 @@ PhaseQp::StageLayout PhaseQp::stage(int i) const {
       }
       break;
   }
+  // Obstacle rows last, so that every other block keeps its place; always soft.
+  if (i >= 1 && params_.obstacle_capacity > 0) {
+    L.obstacle_row = row(2 * params_.obstacle_capacity);
+    soft(2 * params_.obstacle_capacity);
+  }
   // Recovery variant: every hard state row of the stage is soft, at recovery_weight per unit of
   // violation (an exact penalty), so the QP is always feasible.
   if (recovery_ && i >= 1) {
@@ -184,12 +189,18 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
         soft(L.vel_row, 6, params_.recovery_speed_factor * lin, params_.recovery_speed_factor * quad);
       }
     }
+    if (L.obstacle_row >= 0) {  // inactive until fill_obstacles: 0 <= 1
+      soft(L.obstacle_row, 2 * params_.obstacle_capacity, params_.obstacle_penalty,
+           2.0 * params_.obstacle_penalty_quadratic);
+      qp_.d[i].segment(L.obstacle_row, 2 * params_.obstacle_capacity).setOnes();
+    }
   }
 }
 
 int PhaseQp::keepout_row(int i) const { return stage(i).keepout_row; }
 int PhaseQp::cone_row(int i) const { return stage(i).cone_row; }
 int PhaseQp::velocity_row(int i) const { return stage(i).vel_row; }
+int PhaseQp::obstacle_row(int i) const { return stage(i).obstacle_row; }
 
 void PhaseQp::build(const Vector6d& x0, const TargetState& target, const EstimateQuality& quality) {
   x0_ = x0;
@@ -205,6 +216,50 @@ void PhaseQp::build(const Vector6d& x0, const TargetState& target, const Estimat
     case Phase::Approach: build_approach(x0, target); break;
     case Phase::Docking:
     case Phase::Docked: build_docking(x0, target); break;
+  }
+  if (params_.obstacle_capacity > 0) fill_obstacles(x0);
+}
+
+// Each held obstacle, linearized on stage i about the chaser position the previous plan predicts for
+// t + i Ts (obstacles.hpp). Two rows per obstacle and stage: the stage's own tangent plane, and the next
+// stage's plane moved with the obstacle to this stage's time. So both ends of every period's path lie
+// outside one plane (relative to the obstacle), and with them the whole, nearly straight, relative
+// path of the period: a plane per sample alone lets the path between samples cut through the zone
+// when it moves further in a period than the zone is wide. The rows of empty slots stay 0 <= 1.
+void PhaseQp::fill_obstacles(const Vector6d& x0) {
+  const int K = params_.obstacle_capacity;
+  const int held = obstacles_ != nullptr && predicted_ != nullptr ? std::min(obstacles_->count, K) : 0;
+  const double margin = params_.obstacle_margin_m + estimate_margin_m();
+  for (int k = 0; k < K; ++k) {
+    if (k >= held) {
+      for (int i = 1; i <= N_; ++i) {
+        const int row = stage(i).obstacle_row + 2 * k;
+        qp_.C[i].block<2, 3>(row, 0).setZero();
+        qp_.d[i].segment<2>(row).setOnes();
+      }
+      continue;
+    }
+    const Obstacle& o = obstacles_->items[k];
+    const Eigen::Matrix3d S = obstacle_shape(o, margin);
+    auto centre_at = [&](int i) { return obstacle_position(o, obstacle_t_s_ + i * Ts_, n_, params_.obstacle_prediction); };
+    Eigen::Vector3d centre = centre_at(1);
+    ObstacleRow own = linearize_obstacle(centre, S, predicted_[1], x0.head<3>() - centre);
+    for (int i = 1; i <= N_; ++i) {
+      const int row = stage(i).obstacle_row + 2 * k;
+      ObstacleRow next = own;
+      Eigen::Vector3d centre_next = centre;
+      if (i < N_) {
+        centre_next = centre_at(i + 1);
+        next = linearize_obstacle(centre_next, S, predicted_[i + 1], x0.head<3>() - centre_next);
+      }
+      qp_.C[i].block<1, 3>(row, 0) = -own.normal.transpose();  // n' rho_i >= b
+      qp_.d[i](row) = -own.bound_m;
+      // The next plane, at this stage's obstacle position: n' (rho_i - c_i) >= n' (c_next' - c_next).
+      qp_.C[i].block<1, 3>(row + 1, 0) = -next.normal.transpose();
+      qp_.d[i](row + 1) = -(next.bound_m - next.normal.dot(centre_next - centre));
+      own = next;
+      centre = centre_next;
+    }
   }
 }
 

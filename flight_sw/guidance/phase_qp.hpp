@@ -33,6 +33,7 @@ class PhaseQp {
   // 1-norm rows, and in the recovery variant every hard state row) are listed in the QP's idxs.
   struct StageLayout {
     int box_row = -1, keepout_row = -1, cone_row = -1, t_row = -1, w_row = -1, vel_row = -1, speed_row = -1;
+    int obstacle_row = -1;  // first of 2 x params.obstacle_capacity soft rows (stages 1..N), -1 if none
     int nu = 0, nc = 0, ns = 0;
   };
   StageLayout stage(int i) const;  // blocks follow a fixed order; each present block takes the next columns/rows
@@ -41,6 +42,15 @@ class PhaseQp {
   // docking cone and |v|_inf) made soft rows with penalty recovery_weight * e + recovery_quadratic * e^2
   // per row and metre (or m/s) of violation: the QP the guidance solves when the nominal one is infeasible.
   PhaseQp(Phase phase, const GuidanceParams& params, bool recovery = false);
+
+  // The obstacles the next build() plans around (not owned; nullptr: none), the time t_s of the
+  // build's x0 and the chaser positions the previous plan predicts for stages 0..N (N+1 entries; the
+  // linearization points). Only used when params.obstacle_capacity > 0.
+  void set_obstacles(const ObstacleSet* set, double t_s, const Eigen::Vector3d* predicted) {
+    obstacles_ = set;
+    obstacle_t_s_ = t_s;
+    predicted_ = predicted;
+  }
 
   // Fill the QP for the chaser state x0 (LVLH) with the target as it is at the solve time; `quality`
   // says how well x0 and the thrusters are known (the margins and input bounds follow it).
@@ -67,6 +77,7 @@ class PhaseQp {
   int keepout_row(int i) const;            // keep-out / overshoot row, -1 if none
   int cone_row(int i) const;               // first of the 4 cone rows (soft or hard), -1 if none
   int velocity_row(int i) const;           // first of the 6 |v|_inf rows (docking), -1 if none
+  int obstacle_row(int i) const;           // first obstacle row, -1 if none
   bool recovery() const { return recovery_; }
 
  private:
@@ -78,6 +89,7 @@ class PhaseQp {
   void fill_input_box(int stage);
   void fill_keepout(const Vector6d& x0, const TargetState& target);
   void fill_setpoints(const TargetState& target, double range_m);
+  void fill_obstacles(const Vector6d& x0);
   double rendezvous_setpoint_range_m() const;
 
   Phase phase_;
@@ -98,6 +110,9 @@ class PhaseQp {
   KeepoutPlanes keepout_plan_;
   EstimateQuality quality_;  // of the last build's x0
   double centroid_s_ = 0.0;  // where the prediction puts each period's impulse
+  const ObstacleSet* obstacles_ = nullptr;
+  double obstacle_t_s_ = 0.0;
+  const Eigen::Vector3d* predicted_ = nullptr;
 };
 
 // Solution of the discrete algebraic Riccati equation P = Q + A'PA - A'PB (R + B'PB)^-1 B'PA

@@ -22,7 +22,7 @@ constexpr uint8_t kUntaggedVersion = 1;  // the protocol before tags: counted as
 constexpr std::size_t kHeaderSize = 16;
 constexpr std::size_t kTagSize = 16;
 constexpr std::size_t kKeySize = 32;
-constexpr std::size_t kMaxMessageSize = 260;  // the largest message, tag included
+constexpr std::size_t kMaxMessageSize = 976;  // the largest message, tag included
 constexpr const char* kKeyEnv = "RVD_LINK_KEY";  // the key as 64 hex digits
 constexpr const char* kLabelHostToFlight = "rvd-pil v2 host->flight ";
 constexpr const char* kLabelFlightToHost = "rvd-pil v2 flight->host ";
@@ -36,6 +36,8 @@ enum class Type : uint8_t {
   Cmd = 3,
   Telemetry = 4,
   Bye = 5,
+  Obstacles = 16,
+  ObstacleStatus = 17,
 };
 
 enum class Error : uint8_t {
@@ -124,6 +126,8 @@ inline Error peek(const uint8_t* data, std::size_t n, Type& type) {
     case 3:
     case 4:
     case 5:
+    case 16:
+    case 17:
       break;
     default:
       return Error::UnknownType;
@@ -563,6 +567,144 @@ inline Error decode(const uint8_t* data, std::size_t n, Bye& m) {
   return Error::None;
 }
 
+// Obstacles sensed at nav step k (host -> flight, before nav k); slots 0..count-1 are used.
+struct Obstacles {
+  static constexpr Type kType = Type::Obstacles;
+  static constexpr std::size_t kBodySize = 944;
+  static constexpr std::size_t kSize = kHeaderSize + kBodySize + kTagSize;
+  uint32_t step = 0;  // the nav step these states belong to
+  uint16_t count = 0;  // obstacles in this message (0..8)
+  uint16_t sensed = 0;  // obstacles the chaser senses (> count: the host sent the nearest 8)
+  double t_s = 0;  // simulation time of the states [s]
+  std::array<uint32_t, 8> id{};  // obstacle id per slot
+  std::array<double, 8> t_seen_s{};  // time the obstacle was first sensed [s]
+  std::array<double, 24> position_lvlh_m{};  // centre per slot (x, y, z), LVLH [m]
+  std::array<double, 24> velocity_lvlh_mps{};  // centre velocity per slot, LVLH [m/s]
+  std::array<double, 24> semi_axes_m{};  // semi-axes a, b, c along body x, y, z per slot [m], > 0
+  std::array<double, 32> q_lvlh_body{};  // attitude per slot, quaternion LVLH <- body (w, x, y, z)
+};
+
+// Writes Obstacles::kSize bytes (nonce, sequence number and tag zero: LinkAuth::seal() fills them);
+// returns the size, or 0 and `err` when it cannot.
+inline std::size_t encode(const Obstacles& m, uint8_t* out, std::size_t cap, Error* err = nullptr) {
+  Error e = Error::None;
+  if (out == nullptr || cap < Obstacles::kSize) e = Error::BufferTooSmall;
+  if (!std::isfinite(m.t_s)) e = Error::NonFinite;
+  for (double v : m.t_seen_s) if (!std::isfinite(v)) e = Error::NonFinite;
+  for (double v : m.position_lvlh_m) if (!std::isfinite(v)) e = Error::NonFinite;
+  for (double v : m.velocity_lvlh_mps) if (!std::isfinite(v)) e = Error::NonFinite;
+  for (double v : m.semi_axes_m) if (!std::isfinite(v)) e = Error::NonFinite;
+  for (double v : m.q_lvlh_body) if (!std::isfinite(v)) e = Error::NonFinite;
+  if (err) *err = e;
+  if (e != Error::None) return 0;
+  uint8_t* p = out;
+  wire::put_header(p, Obstacles::kType, Obstacles::kBodySize);
+  wire::put<uint32_t>(p, m.step);
+  wire::put<uint16_t>(p, m.count);
+  wire::put<uint16_t>(p, m.sensed);
+  wire::put(p, m.t_s);
+  for (auto v : m.id) wire::put<uint32_t>(p, v);
+  for (auto v : m.t_seen_s) wire::put(p, v);
+  for (auto v : m.position_lvlh_m) wire::put(p, v);
+  for (auto v : m.velocity_lvlh_mps) wire::put(p, v);
+  for (auto v : m.semi_axes_m) wire::put(p, v);
+  for (auto v : m.q_lvlh_body) wire::put(p, v);
+  std::memset(p, 0, kTagSize);
+  p += kTagSize;
+  return static_cast<std::size_t>(p - out);
+}
+
+// Decodes a whole obstacles message; on error `m` is left unchanged. Checks the layout only:
+// a received message must pass LinkAuth::open() first (receive() does both).
+inline Error decode(const uint8_t* data, std::size_t n, Obstacles& m) {
+  Type type;
+  Error e = peek(data, n, type);
+  if (e != Error::None) return e;
+  if (type != Obstacles::kType) return Error::WrongType;
+  const uint8_t* h = data + 6;
+  if (wire::get<uint16_t>(h) != Obstacles::kBodySize || n != Obstacles::kSize) return Error::BadSize;
+  Obstacles r;
+  const uint8_t* p = data + kHeaderSize;
+  r.step = wire::get<uint32_t>(p);
+  r.count = wire::get<uint16_t>(p);
+  r.sensed = wire::get<uint16_t>(p);
+  r.t_s = wire::get<double>(p);
+  for (auto& v : r.id) v = wire::get<uint32_t>(p);
+  for (auto& v : r.t_seen_s) v = wire::get<double>(p);
+  for (auto& v : r.position_lvlh_m) v = wire::get<double>(p);
+  for (auto& v : r.velocity_lvlh_mps) v = wire::get<double>(p);
+  for (auto& v : r.semi_axes_m) v = wire::get<double>(p);
+  for (auto& v : r.q_lvlh_body) v = wire::get<double>(p);
+  if (!std::isfinite(r.t_s)) return Error::NonFinite;
+  for (double v : r.t_seen_s) if (!std::isfinite(v)) return Error::NonFinite;
+  for (double v : r.position_lvlh_m) if (!std::isfinite(v)) return Error::NonFinite;
+  for (double v : r.velocity_lvlh_mps) if (!std::isfinite(v)) return Error::NonFinite;
+  for (double v : r.semi_axes_m) if (!std::isfinite(v)) return Error::NonFinite;
+  for (double v : r.q_lvlh_body) if (!std::isfinite(v)) return Error::NonFinite;
+  m = r;
+  return Error::None;
+}
+
+// What the flight software holds of the last obstacles message (flight -> host, before cmd k).
+struct ObstacleStatus {
+  static constexpr Type kType = Type::ObstacleStatus;
+  static constexpr std::size_t kBodySize = 52;
+  static constexpr std::size_t kSize = kHeaderSize + kBodySize + kTagSize;
+  uint32_t step = 0;  // step of the obstacles message this answers
+  uint16_t received = 0;  // obstacles in that message
+  uint16_t held = 0;  // obstacles the guidance plans around (the nearest, up to its capacity)
+  uint16_t capacity = 0;  // obstacles the flight software was built to hold
+  uint16_t reserved = 0;  // 0
+  uint32_t dropped_total = 0;  // obstacle entries left out for lack of capacity so far
+  uint32_t rejected_total = 0;  // obstacles messages or entries rejected (bad shape, attitude) so far
+  std::array<uint32_t, 8> held_id{};  // ids held, nearest first (0 in unused slots)
+};
+
+// Writes ObstacleStatus::kSize bytes (nonce, sequence number and tag zero: LinkAuth::seal() fills them);
+// returns the size, or 0 and `err` when it cannot.
+inline std::size_t encode(const ObstacleStatus& m, uint8_t* out, std::size_t cap, Error* err = nullptr) {
+  Error e = Error::None;
+  if (out == nullptr || cap < ObstacleStatus::kSize) e = Error::BufferTooSmall;
+  if (err) *err = e;
+  if (e != Error::None) return 0;
+  uint8_t* p = out;
+  wire::put_header(p, ObstacleStatus::kType, ObstacleStatus::kBodySize);
+  wire::put<uint32_t>(p, m.step);
+  wire::put<uint16_t>(p, m.received);
+  wire::put<uint16_t>(p, m.held);
+  wire::put<uint16_t>(p, m.capacity);
+  wire::put<uint16_t>(p, m.reserved);
+  wire::put<uint32_t>(p, m.dropped_total);
+  wire::put<uint32_t>(p, m.rejected_total);
+  for (auto v : m.held_id) wire::put<uint32_t>(p, v);
+  std::memset(p, 0, kTagSize);
+  p += kTagSize;
+  return static_cast<std::size_t>(p - out);
+}
+
+// Decodes a whole obstacle_status message; on error `m` is left unchanged. Checks the layout only:
+// a received message must pass LinkAuth::open() first (receive() does both).
+inline Error decode(const uint8_t* data, std::size_t n, ObstacleStatus& m) {
+  Type type;
+  Error e = peek(data, n, type);
+  if (e != Error::None) return e;
+  if (type != ObstacleStatus::kType) return Error::WrongType;
+  const uint8_t* h = data + 6;
+  if (wire::get<uint16_t>(h) != ObstacleStatus::kBodySize || n != ObstacleStatus::kSize) return Error::BadSize;
+  ObstacleStatus r;
+  const uint8_t* p = data + kHeaderSize;
+  r.step = wire::get<uint32_t>(p);
+  r.received = wire::get<uint16_t>(p);
+  r.held = wire::get<uint16_t>(p);
+  r.capacity = wire::get<uint16_t>(p);
+  r.reserved = wire::get<uint16_t>(p);
+  r.dropped_total = wire::get<uint32_t>(p);
+  r.rejected_total = wire::get<uint32_t>(p);
+  for (auto& v : r.held_id) v = wire::get<uint32_t>(p);
+  m = r;
+  return Error::None;
+}
+
 // Fixed-size string fields: copy with truncation and zero padding; read up to the first zero.
 template <std::size_t N> inline void set_str(std::array<char, N>& dst, const std::string& s) {
   dst.fill(0);
@@ -582,6 +724,8 @@ inline std::size_t body_size(Type type) {
     case Type::Cmd: return 168;
     case Type::Telemetry: return 184;
     case Type::Bye: return 72;
+    case Type::Obstacles: return 944;
+    case Type::ObstacleStatus: return 52;
   }
   return 0;
 }

@@ -131,6 +131,42 @@ void bind_guidance(py::module_& m) {
       .value("NaturalMotion", KeepoutDirection::NaturalMotion)
       .value("Shortest", KeepoutDirection::Shortest);
 
+  py::enum_<ObstaclePrediction>(m, "ObstaclePrediction")
+      .value("ConstantVelocity", ObstaclePrediction::ConstantVelocity)
+      .value("NaturalMotion", ObstaclePrediction::NaturalMotion);
+  m.attr("MAX_OBSTACLES") = kMaxObstacles;
+
+  py::class_<Obstacle>(m, "Obstacle", "An ellipsoidal keep-out zone as the guidance is told it (LVLH, SI).")
+      .def(py::init([](uint32_t id, const Eigen::Vector3d& r, const Eigen::Vector3d& v, const Eigen::Vector3d& axes,
+                       const Eigen::Vector4d& q, double t_state_s, double t_seen_s) {
+             Obstacle o;
+             o.id = id;
+             o.position_lvlh_m = r;
+             o.velocity_lvlh_mps = v;
+             o.semi_axes_m = axes;
+             o.q_lvlh_body = quat(q);
+             o.t_state_s = t_state_s;
+             o.t_seen_s = t_seen_s;
+             return o;
+           }),
+           py::arg("id"), py::arg("position_lvlh_m"), py::arg("velocity_lvlh_mps") = Eigen::Vector3d::Zero(),
+           py::arg("semi_axes_m") = Eigen::Vector3d::Ones(), py::arg("q_lvlh_body") = Eigen::Vector4d(1, 0, 0, 0),
+           py::arg("t_state_s") = 0.0, py::arg("t_seen_s") = 0.0)
+      .def_readwrite("id", &Obstacle::id)
+      .def_readwrite("position_lvlh_m", &Obstacle::position_lvlh_m)
+      .def_readwrite("velocity_lvlh_mps", &Obstacle::velocity_lvlh_mps)
+      .def_readwrite("semi_axes_m", &Obstacle::semi_axes_m)
+      .def_readwrite("t_state_s", &Obstacle::t_state_s)
+      .def_readwrite("t_seen_s", &Obstacle::t_seen_s);
+  m.def(
+      "linearize_obstacle",
+      [](const Eigen::Vector3d& centre, const Eigen::Matrix3d& S, const Eigen::Vector3d& p) {
+        const ObstacleRow r = linearize_obstacle(centre, S, p, Eigen::Vector3d::UnitX());
+        return py::make_tuple(r.normal, r.bound_m);
+      },
+      py::arg("centre"), py::arg("S"), py::arg("p"),
+      "the linearized keep-out row about p: (unit normal n, bound b) of n'r >= b");
+
   py::class_<ThrusterParams>(m, "ThrusterParams", "Six on/off thrusters on +-x, +-y, +-z of LVLH.")
       .def(py::init<>())
       .def_readwrite("mass_kg", &ThrusterParams::mass_kg)
@@ -215,6 +251,11 @@ void bind_guidance(py::module_& m) {
       .def_readwrite("recovery_weight", &GuidanceParams::recovery_weight)
       .def_readwrite("recovery_quadratic", &GuidanceParams::recovery_quadratic)
       .def_readwrite("max_iter_accept_residual", &GuidanceParams::max_iter_accept_residual)
+      .def_readwrite("obstacle_capacity", &GuidanceParams::obstacle_capacity, "0 or MAX_OBSTACLES")
+      .def_readwrite("obstacle_margin_m", &GuidanceParams::obstacle_margin_m)
+      .def_readwrite("obstacle_penalty", &GuidanceParams::obstacle_penalty)
+      .def_readwrite("obstacle_penalty_quadratic", &GuidanceParams::obstacle_penalty_quadratic)
+      .def_readwrite("obstacle_prediction", &GuidanceParams::obstacle_prediction)
       .def_readwrite("margins", &GuidanceParams::margins)
       .def_readwrite("finite_burns", &GuidanceParams::finite_burns)
       .def("mean_motion_rad_s", &GuidanceParams::mean_motion_rad_s)
@@ -286,6 +327,20 @@ void bind_guidance(py::module_& m) {
       .def("step", &Guidance::step, py::arg("nav"), py::arg("time_limit_us") = 0.0,
            py::call_guard<py::gil_scoped_release>())
       .def_property_readonly("phase", &Guidance::phase)
+      .def(
+          "set_obstacles",
+          [](Guidance& g, const std::vector<Obstacle>& list, double t_s, const Eigen::Vector3d& chaser) {
+            g.set_obstacles(list.data(), static_cast<int>(list.size()), t_s, chaser);
+          },
+          py::arg("obstacles"), py::arg("t_s"), py::arg("chaser_lvlh_m"))
+      .def_property_readonly("held_obstacle_ids",
+                             [](const Guidance& g) {
+                               std::vector<uint32_t> ids;
+                               for (int k = 0; k < g.obstacles().count; ++k) ids.push_back(g.obstacles().items[k].id);
+                               return ids;
+                             })
+      .def_property_readonly("obstacles_dropped", [](const Guidance& g) { return g.obstacles().dropped_total; })
+      .def_property_readonly("obstacles_rejected", [](const Guidance& g) { return g.obstacles().rejected_total; })
       .def("reset", &Guidance::reset, py::arg("start") = Phase::Rendezvous)
       .def(
           "last_qp",

@@ -6,6 +6,7 @@
 //    (flight_sw/CMakeLists.txt defines it for every flight_sw library).
 #include <doctest/doctest.h>
 
+#include <array>
 #include <cmath>
 #include <cstdlib>
 #include <string>
@@ -92,4 +93,47 @@ TEST_CASE("no heap allocation inside Guidance::step, whatever the step does") {
     CHECK(g.phase() == Phase::Docked);  // it still docks through the injected faults
     CHECK(fallbacks > 10);             // and the fallback paths were exercised
   }
+}
+
+TEST_CASE("no heap allocation inside Guidance::step and set_obstacles with obstacle rows on") {
+  GuidanceParams p;
+  p.obstacle_capacity = kMaxObstacles;
+  const double n = p.mean_motion_rad_s();
+  const ScenarioCase c = dissertation_case(1);
+  Guidance g(p);
+  TargetState target0;
+  target0.q_lvlh_body = c.q_lvlh_body;
+  // Six spheres near the path (more than the guidance holds), one drifting across it.
+  std::array<Obstacle, 6> list{};
+  for (int k = 0; k < 6; ++k) {
+    list[k].id = static_cast<uint32_t>(k + 1);
+    list[k].position_lvlh_m = Eigen::Vector3d(60.0 - 40.0 * k, -1200.0 + 180.0 * k, 30.0);
+    list[k].velocity_lvlh_mps = Eigen::Vector3d(0.02 * (k % 2 ? 1 : -1), 0.0, 0.0);
+    list[k].semi_axes_m = Eigen::Vector3d(25.0, 15.0, 10.0);
+  }
+  Vector6d x = c.x0;
+  double t = 0.0;
+  long news = 0;
+  int steps = 0;
+  for (; steps < 150; ++steps) {
+    NavInput nav;
+    nav.step = static_cast<uint32_t>(steps);
+    nav.t_s = t;
+    nav.x_lvlh = x;
+    nav.q_lvlh_body = c.q_lvlh_body;
+    forbid_heap(true);
+    const long before = rvd::testing::allocations();
+    g.set_obstacles(list.data(), static_cast<int>(list.size()), t, x.head<3>());
+    const Command cmd = g.step(nav);
+    news += rvd::testing::allocations() - before;
+    forbid_heap(false);
+    if (cmd.phase == Phase::Docked) break;
+    Vector6d xp = x;
+    xp.tail<3>() += cmd.dv_alloc_mps;
+    x = cw_stm(n, cmd.period_s) * xp;
+    t += cmd.period_s;
+  }
+  CHECK(news == 0);
+  CHECK(g.obstacles().count == kMaxObstacles);
+  CHECK(g.obstacles().dropped_total == 2u * static_cast<uint32_t>(steps + (steps < 150 ? 1 : 0)));
 }

@@ -1,0 +1,65 @@
+"""Case 1 with debris through the whole harness: the native flight executable over Zenoh, told what
+the chaser senses by the obstacles message, judged on the truth by the safety monitor.
+
+- ideal (CW truth, no noise, impulsive) with four more obstacles far away: six in all, more than
+  the flight software holds (MAX_OBSTACLES): it keeps the nearest and says so (obstacle_status);
+- disturbed (rvd-run's defaults: nonlinear truth with J2 and drag, thrust and sensor noise, finite
+  burns): docks, every obstacle's clearance >= 1 on the true path.
+"""
+import dataclasses
+
+import flight_sw as fsw
+import pytest
+
+from host_sim import scenario
+from host_sim.obstacles import Obstacle
+from host_sim.pil import run_pil
+from host_sim.record import load_events
+from host_sim.server import ServerConfig
+
+FAR = [Obstacle(id=10 + k, semi_axes_m=(10.0, 10.0, 10.0), position_lvlh_m=pos)
+       for k, pos in enumerate([(2500.0, 0.0, 0.0), (-2600.0, 0.0, 0.0), (0.0, 0.0, 2700.0), (0.0, 0.0, -2800.0)])]
+
+
+def assert_clear_and_docked(summary):
+    assert summary.end == "docked", summary.end
+    s = summary.safety
+    assert s["verdict"] == "safe", s["episodes"]
+    assert s["per_limit"]["obstacle"]["violations"] == 0
+    for oid, f in s["figures"]["obstacles"].items():
+        assert f["min_clearance"] >= 1.0, (oid, f)
+
+
+def test_ideal_case1_with_more_obstacles_than_the_flight_holds(tmp_path):
+    base = scenario.load("case1_crossing_obstacle")
+    scen = dataclasses.replace(base, obstacles=base.obstacles + tuple(FAR))
+    summary, run_dir = run_pil(scen, truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True,
+                               config=ServerConfig(delay_model="none"), run_dir=tmp_path / "ideal")
+    assert_clear_and_docked(summary)
+    st = summary.obstacle_status
+    assert st is not None and st.capacity == fsw.MAX_OBSTACLES and st.received == 6
+    assert st.held == fsw.MAX_OBSTACLES and {1, 2} <= set(st.held_id[:st.held])
+    # Two left out per step, counted since the first step.
+    assert st.dropped_total == 2 * (st.step + 1) and st.rejected_total == 0
+    assert "flight_obstacles" in set(load_events(run_dir)["kind"]), "the host records what the flight holds"
+    print(f"ideal: dv {summary.dv_total_mps:.3f} m/s, clearance "
+          f"{ {k: round(v['min_clearance'], 3) for k, v in summary.safety['figures']['obstacles'].items()} }")
+
+
+def test_disturbed_case1_docks_around_the_debris(tmp_path):
+    summary, _ = run_pil("case1_crossing_obstacle", truth="nonlinear", sensor_noise=True, thrust_noise=True,
+                         impulsive=False, config=ServerConfig(delay_model="none"), run_dir=tmp_path / "disturbed")
+    assert_clear_and_docked(summary)
+    print(f"disturbed: dv {summary.dv_total_mps:.3f} m/s, clearance "
+          f"{ {k: round(v['min_clearance'], 3) for k, v in summary.safety['figures']['obstacles'].items()} }")
+
+
+def test_without_obstacle_rows_the_same_run_is_judged_unsafe(tmp_path):
+    """The flight software told to ignore obstacles (its QPs without rows) crosses the debris: the
+    monitor's verdict sees it."""
+    summary, _ = run_pil("case1_crossing_obstacle", truth="cw", sensor_noise=False, thrust_noise=False,
+                         impulsive=True, config=ServerConfig(delay_model="none"), run_dir=tmp_path / "blind",
+                         flight_args=["--obstacles", "off"])
+    s = summary.safety
+    assert s["verdict"] == "unsafe" and s["per_limit"]["obstacle"]["violations"] >= 1
+    assert summary.obstacle_status.held == 0 and summary.obstacle_status.capacity == 0
