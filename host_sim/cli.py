@@ -54,7 +54,13 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--zenoh-mode", choices=("peer", "router"), default="peer", help="host Zenoh mode")
     ap.add_argument("--cmd-timeout", type=float, default=10.0, help="lockstep: seconds before nav is resent")
     ap.add_argument("--flight-sw", default=None, help="flight executable (default: build/native or $RVD_FLIGHT_SW)")
+    ap.add_argument("--guidance", default=None, metavar="PATH",
+                    help="a plug-in guidance law's folder (law.toml and its sources, see README 'Plug-in guidance'): "
+                         "built with the flight software's harness and flown instead of the built-in MPC")
     ap.add_argument("--runner", default="", help='command prefix for the flight executable, e.g. "qemu-arm -cpu cortex-a9"')
+    ap.add_argument("--allow-vehicle-mismatch", action="store_true",
+                    help="run even when the flight software plans with another vehicle than the truth simulates "
+                         "(a robustness study; its own --set thrusters.* pins it)")
     ap.add_argument("--out", default=None, help="run record directory (default runs/<time>-<scenario>-<id>)")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress display")
     return ap
@@ -105,7 +111,8 @@ def main(argv=None) -> int:
     flight_args = argv[split + 1:]
     delay = args.delay or ("none" if args.ideal else "reported")
     cfg = ServerConfig(mode=args.zenoh_mode, lockstep=args.realtime is None, speedup=args.realtime or 1.0,
-                       cmd_timeout_s=args.cmd_timeout, delay_model=delay)
+                       cmd_timeout_s=args.cmd_timeout, delay_model=delay,
+                       allow_vehicle_mismatch=args.allow_vehicle_mismatch)
     progress = Progress(args.quiet)
     from host_sim.pil import run_pil  # after argument errors, so --help stays fast
 
@@ -118,17 +125,34 @@ def main(argv=None) -> int:
         signal.signal(signal.SIGINT, stop)
         signal.signal(signal.SIGTERM, stop)
 
+    meta = {}
+    if args.guidance is not None:
+        from host_sim.guidance_build import LawBuildError, build_native
+
+        try:
+            exe, manifest = build_native(args.guidance)
+        except LawBuildError as exc:
+            print(f"rvd-run: {exc}", file=sys.stderr)
+            return 2
+        if args.flight_sw is None:
+            args.flight_sw = str(exe)
+        flight_args = manifest.flight_args() + flight_args
+        meta["guidance_law"] = {"name": manifest.name, "folder": str(manifest.folder), "executable": args.flight_sw}
     try:
         summary, run_dir = run_pil(
             args.scenario, seed=args.seed, truth=args.truth,
             sensor_noise=not (args.ideal or args.no_sensor_noise), thrust_noise=not (args.ideal or args.no_thrust_noise),
             impulsive=args.ideal or args.impulsive, flight_exe=args.flight_sw, flight_args=flight_args,
-            runner=args.runner, config=cfg, run_dir=args.out, on_step=progress, on_started=on_started,
+            runner=args.runner, config=cfg, run_dir=args.out, on_step=progress, on_started=on_started, meta=meta,
         )
     except FileNotFoundError as exc:
         print(f"rvd-run: {exc}", file=sys.stderr)
         return 2
     progress.done()
+    if summary.end.startswith(("flight software refused the configuration", "vehicle mismatch")):
+        source = argv[:split][0] if argv[:split] and not argv[0].startswith("-") else args.scenario.name
+        print(f"rvd-run: {source}: {summary.end} (run record {run_dir})", file=sys.stderr)
+        return 2
     print(f"scenario {args.scenario.name}: {summary.end} after {summary.steps} steps, "
           f"t = {summary.t_s:.0f} s, final distance to the port {summary.final_range_to_port_m:.3f} m")
     print(summary.table())
