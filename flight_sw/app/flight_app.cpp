@@ -337,7 +337,11 @@ LawFault FlightApp::step_law(const rvd_nav_input& in, double budget_s, double ha
   const double dv_max = cfg_.guidance.phase(static_cast<guidance::Phase>(o.phase)).u_max_mps;
   for (double v : o.dv_lvlh_mps)
     if (std::abs(v) > dv_max * (1.0 + 1e-12)) return LawFault::OutOfLimit;
-  if (step_us > budget_s * 1e6) return LawFault::Overrun;
+  // Late: the command is not used, unless the law itself saw its budget run out and answered with
+  // its own deadline fallback (a plan computed before, or zero), as the MPC does.
+  const bool own_fallback = o.solver_status == RVD_SOLVER_TIME_LIMIT &&
+                            (o.status == RVD_STATUS_SHIFTED_PLAN || o.status == RVD_STATUS_ZERO_THRUST);
+  if (step_us > budget_s * 1e6 && !own_fallback) return LawFault::Overrun;
   if (heap_in_use_bytes() > heap_before) return LawFault::Allocated;
   return LawFault::None;
 }
@@ -515,8 +519,10 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   last_fault_ = fault;
   phase_ = phase;
   const guidance::PhaseParams& pp = cfg_.guidance.phase(phase);
-  const guidance::Allocation a = guidance::allocate_thrusters(dv, guidance::max_pulse_s(pp.u_max_mps, cfg_.guidance.thrusters),
-                                                              cfg_.guidance.thrusters, in.quality.thrust_scale);
+  // A pulse never outlasts its period (a law on a vehicle too weak for its delta-v limit).
+  const double pulse_cap_s = std::min(guidance::max_pulse_s(pp.u_max_mps, cfg_.guidance.thrusters), pp.Ts_s);
+  const guidance::Allocation a =
+      guidance::allocate_thrusters(dv, pulse_cap_s, cfg_.guidance.thrusters, in.quality.thrust_scale);
   const double step_us = filter_us + std::chrono::duration<double, std::micro>(Clock::now() - t_law).count();
   nav_filter_->command(nav.t_s, a.dv_nominal_mps, a.pulse_s);
 

@@ -27,8 +27,9 @@
  * Rules for a law (the harness checks what it can see, records what happened and commands zero
  * thrust for that step; see rvd_guidance_status):
  *   - step() must not allocate (the harness compares the heap in use before and after), must return
- *     within its budget (a later answer is discarded: zero thrust), and must return finite numbers
- *     with |dv_lvlh_mps[i]| <= phase[p].dv_max_mps (else zero thrust);
+ *     within its budget (a later answer is discarded: zero thrust; except a law's own deadline
+ *     fallback: solver_status RVD_SOLVER_TIME_LIMIT with status SHIFTED_PLAN or ZERO_THRUST), and must
+ *     return finite numbers with |dv_lvlh_mps[i]| <= phase[p].dv_max_mps (else zero thrust);
  *   - a step that crashes (SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT) disables the law for the rest of
  *     the run: zero thrust from then on;
  *   - create() may allocate; it returns NULL with a reason in `error` for an unusable configuration.
