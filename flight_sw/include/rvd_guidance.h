@@ -167,8 +167,10 @@ typedef struct rvd_guidance_output {
   rvd_named_value named[RVD_MAX_NAMED]; /* anything the law wants logged, by name (record: law_values) */
 } rvd_guidance_output;
 
-/* A law. `create` may allocate and is called once per process; `reset` starts a new run (a run
- * restarted at step 0); `step` is one control period; `destroy` frees everything. */
+/* A law. `create` may allocate; it is called at start (from the command line's configuration) and
+ * again when the host's configuration (vehicle, settings) arrives before the first step: the new
+ * instance replaces the old one, which is then destroyed. `reset` starts a new run (step 0, before
+ * its first step); `step` is one control period; `destroy` frees everything. */
 typedef struct rvd_guidance_law {
   uint32_t abi_version; /* RVD_GUIDANCE_ABI_VERSION the law was built against */
   const char* name;     /* short name, reported in hello and written to the record */
