@@ -68,11 +68,13 @@ qemu-check: venv | deps-pil
 
 # The emulated PIL campaign. TARGET=q7s (or a comma-separated list) selects targets, CPU=cortex-a8
 # swaps the emulated CPU model; PIL_ARGS passes more options to bench/campaign.py (e.g. --full).
+# GUIDANCE=PATH flies a plug-in guidance law (a folder with law.toml and its sources) instead of the
+# built-in MPC, built statically for every target by the same cross toolchains (report in reports/pil-<folder>).
 TARGET ?= q7s,rpi3
-PIL_OUT ?= reports/pil
+PIL_OUT ?= reports/pil$(if $(GUIDANCE),-$(notdir $(abspath $(GUIDANCE))))
 pil: export OPENBLAS_NUM_THREADS = 1
 pil: deps-pil build
-	$(PY) -m bench.campaign --targets $(TARGET) $(if $(CPU),--cpu $(CPU)) --out $(PIL_OUT) $(PIL_ARGS)
+	$(PY) -m bench.campaign --targets $(TARGET) $(if $(CPU),--cpu $(CPU)) $(if $(GUIDANCE),--guidance $(GUIDANCE)) --out $(PIL_OUT) $(PIL_ARGS)
 
 clean:
 	rm -rf build

@@ -59,6 +59,7 @@ class Spec:
     checks: bool = True
     system_mode: bool = True
     cmd_timeout_s: float = 120.0
+    guidance: str | None = None  # a plug-in guidance law's folder (law.toml): flown instead of the built-in MPC
 
 
 def _scenario(label: str):
@@ -109,6 +110,14 @@ class Campaign:
         self.log_lines: list[str] = []
         self.t0 = time.monotonic()
         self.owned: list[str] = []  # every run directory of this campaign (run or reused), for the report
+        self.law_args: list[str] = []     # a plug-in law's parameter defaults (its manifest)
+        self.native_exe: Path | None = None
+        if spec.guidance:
+            from host_sim.guidance_build import build_native
+
+            self.native_exe, manifest = build_native(spec.guidance)
+            self.law_args = manifest.flight_args()
+            self.say(f"guidance law {manifest.name} from {manifest.folder}: {self.native_exe.relative_to(REPO)}")
 
     def say(self, text: str) -> None:
         line = f"[{time.monotonic() - self.t0:6.0f} s] {text}"
@@ -140,8 +149,10 @@ class Campaign:
             if k % 50 == 0 and k:
                 print(f"           ... step {k}, {time.monotonic() - t0:5.1f} s", flush=True)
 
+        if flight_exe is None and flight_command is None and not runner:
+            flight_exe = self.native_exe
         summary, _ = run_pil(_scenario(scenario_label), seed=spec.seed, **kw, flight_exe=flight_exe,
-                             flight_args=list(flight_args), runner=runner, flight_command=flight_command,
+                             flight_args=[*self.law_args, *flight_args], runner=runner, flight_command=flight_command,
                              flight_endpoint=flight_endpoint, config=cfg, run_dir=run_dir, on_step=progress,
                              meta={"campaign_fingerprint": fingerprint, "scenario_label": scenario_label,
                                    **(meta or {})})
@@ -158,7 +169,12 @@ class Campaign:
         model = cycles.CycleModel(t)
         self.say(f"{t.name}: {t.arch} {t.cpu} at {t.clock_hz / 1e6:.0f} MHz (cycle model: {model.engine} "
                  f"{model.entry.get('mca_cpu', t.cpu)}, {len(model.corrections)} corrections), building the flight executable")
-        exe = build.cross_build(t)
+        if spec.guidance:  # the plug-in law, statically, by the same cross toolchain
+            from host_sim.guidance_build import build_cross
+
+            exe, _ = build_cross(spec.guidance, t)
+        else:
+            exe = build.cross_build(t)
         self.say(f"{t.name}: {exe.path.relative_to(REPO)} ({exe.size_bytes / 1024:.0f} KiB, static)")
         lib = plugin.build(download=True)
         profile_lib = plugin.build_profile(download=False)
@@ -187,7 +203,7 @@ class Campaign:
         if spec.checks:
             ideal_meta = {**base, "horizons": DEFAULT_HORIZONS, "kind": "check"}
             native_dir = self.runs_dir / "native" / "case1-ideal"
-            fp = hashlib.sha256(f"native{_sha(REPO / 'build/native/flight_sw/rvd_flight_sw')}".encode()).hexdigest()[:16]
+            fp = hashlib.sha256(f"native{_sha(self.native_exe or REPO / 'build/native/flight_sw/rvd_flight_sw')}".encode()).hexdigest()[:16]
             native = self.run(native_dir, "case1_vbar", fingerprint=fp, ideal=True,
                               meta={"target": "host", "mode": "native", "kind": "check", "horizons": DEFAULT_HORIZONS})
             reps = []
@@ -311,9 +327,12 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
     ap.add_argument("--report-only", action="store_true", help="rebuild the report from the runs in --out")
     ap.add_argument("--replace", action="store_true",
                     help="--out holds a campaign with other settings: delete its runs and start afresh")
+    ap.add_argument("--guidance", default=None, metavar="PATH",
+                    help="a plug-in guidance law's folder (law.toml and sources), built for every target and flown "
+                         "instead of the built-in MPC")
     a = ap.parse_args(argv)
     spec = Spec(targets=[t for t in a.targets.split(",") if t], cpu=a.cpu, truth=a.truth, noise=not a.no_noise,
-                checks=not a.no_checks, system_mode=not a.no_system)
+                checks=not a.no_checks, system_mode=not a.no_system, guidance=a.guidance)
     if a.full:
         spec.scenarios = ["case1_vbar", "case2_rbar", "case3_rotating"] + [f"random:{i}" for i in range(1, 21)]
     if a.scenarios:

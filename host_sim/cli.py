@@ -73,7 +73,13 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --target: count instructions only, no block profile and no cycle-model pricing")
     ap.add_argument("--flight-sw", default=None, help="flight executable (default: build/native or $RVD_FLIGHT_SW; "
                                                       "with --target: the cross build)")
+    ap.add_argument("--guidance", default=None, metavar="PATH",
+                    help="a plug-in guidance law's folder (law.toml and its sources, see README 'Plug-in guidance'): "
+                         "built with the flight software's harness and flown instead of the built-in MPC")
     ap.add_argument("--runner", default="", help='command prefix for the flight executable, e.g. "qemu-arm -cpu cortex-a9"')
+    ap.add_argument("--allow-vehicle-mismatch", action="store_true",
+                    help="run even when the flight software plans with another vehicle than the truth simulates "
+                         "(a robustness study; its own --set thrusters.* pins it)")
     ap.add_argument("--out", default=None, help="run record directory (default runs/<time>-<scenario>-<id>)")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress display")
     return ap
@@ -250,6 +256,8 @@ def _main(argv=None) -> int:
     flight_args = argv[split + 1:]
     if args.cpu and not args.target:
         raise CliError("--cpu needs --target (the CPU model of which flight computer?)")
+    if args.target and args.guidance:
+        raise CliError("--guidance with --target: a law is cross-built by `make pil GUIDANCE=PATH` (natively: leave --target out)")
     if args.target and args.runner:
         raise CliError("--target sets the runner itself (QEMU with the counting plugins); leave --runner out")
     from host_sim.pil import FlightLaunchError, default_run_dir, run_pil  # after argument errors: --help stays fast
@@ -261,7 +269,8 @@ def _main(argv=None) -> int:
         target, exe, flight_command, profile = _target_setup(args, run_dir)
     delay = args.delay or ("none" if args.ideal else "estimated" if target is not None else "reported")
     cfg = ServerConfig(mode=args.zenoh_mode, lockstep=args.realtime is None, speedup=args.realtime or 1.0,
-                       cmd_timeout_s=args.cmd_timeout, delay_model=delay)
+                       cmd_timeout_s=args.cmd_timeout, delay_model=delay,
+                       allow_vehicle_mismatch=args.allow_vehicle_mismatch)
     delay_note = None
     if target is not None:
         cfg.cpi, cfg.clock_hz = target.cpi.nominal, target.clock_hz
@@ -281,19 +290,34 @@ def _main(argv=None) -> int:
         signal.signal(signal.SIGINT, stop)
         signal.signal(signal.SIGTERM, stop)
 
+    meta = {} if target is None else {"target": target.name, "build": target.build_name, "cpu": target.cpu,
+                                      "arch": target.arch, "clock_hz": target.clock_hz, "mode": "user"}
+    if args.guidance is not None:
+        from host_sim.guidance_build import LawBuildError, build_native
+
+        try:
+            law_exe, manifest = build_native(args.guidance)
+        except LawBuildError as exc:
+            raise CliError(str(exc)) from None
+        if exe is None:
+            exe = str(law_exe)
+        flight_args = manifest.flight_args() + flight_args
+        meta["guidance_law"] = {"name": manifest.name, "folder": str(manifest.folder), "executable": exe}
     try:
         summary, run_dir = run_pil(
             args.scenario, seed=args.seed, truth=args.truth,
             sensor_noise=not (args.ideal or args.no_sensor_noise), thrust_noise=not (args.ideal or args.no_thrust_noise),
             impulsive=args.ideal or args.impulsive, flight_exe=None if flight_command else exe, flight_args=flight_args,
             runner=args.runner, flight_command=flight_command, config=cfg, run_dir=run_dir, on_step=progress,
-            on_started=on_started,
-            meta=None if target is None else {"target": target.name, "build": target.build_name, "cpu": target.cpu,
-                                              "arch": target.arch, "clock_hz": target.clock_hz, "mode": "user"},
+            on_started=on_started, meta=meta,
         )
     except (FileNotFoundError, FileExistsError, FlightLaunchError) as exc:
         raise CliError(str(exc)) from None
     progress.done()
+    if summary.end.startswith(("flight software refused the configuration", "vehicle mismatch")):
+        source = argv[:split][0] if argv[:split] and not argv[0].startswith("-") else args.scenario.name
+        print(f"rvd-run: {source}: {summary.end} (run record {run_dir})", file=sys.stderr)
+        return 2
     import json
 
     meta = json.loads((run_dir / "meta.json").read_text())

@@ -36,6 +36,9 @@ KEYS = {
     'bye': 'rvd/<run>/bye',
     'obstacles': 'rvd/<run>/obstacles',
     'obstacle_status': 'rvd/<run>/obstacle_status',
+    'config': 'rvd/<run>/config',
+    'config_echo': 'rvd/<run>/config_echo',
+    'law': 'rvd/<run>/law',
 }
 
 
@@ -110,7 +113,7 @@ class Cmd:
     BODY = struct.Struct('<IBBBBd3d3d6dddQHHIddd')
     step: int = 0  # the nav step this answers
     phase: int = 0  # 1 rendezvous, 2 approach, 3 docking, 4 docked
-    guidance_status: int = 0  # 0 ok, 1 shifted plan, 2 zero thrust, 3 invalid state, 4 docked, 5 recovered (elastic QP)
+    guidance_status: int = 0  # 0 ok, 1 shifted plan, 2 zero thrust, 3 invalid state, 4 docked, 5 recovered (elastic QP), 6 law fault (zero thrust)
     solver_status: int = 0  # 0 solved, 1 max_iter, 2 infeasible, 3 invalid_input, 4 numerical_error, 5 time_limit, 255 not run
     overrun: int = 0  # 1 when this solve exceeded its deadline
     period_s: float = 0.0  # control period Ts until the next nav [s]
@@ -205,7 +208,41 @@ class ObstacleStatus:
     held_id: tuple[int, ...] = field(default_factory=lambda: (0,) * 8)  # ids held, nearest first (0 in unused slots)
 
 
-MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Nav, Cmd, Telemetry, Bye, Obstacles, ObstacleStatus,)}
+@dataclass
+class Config:
+    """The run's vehicle and guidance settings (host -> flight), or what the flight software uses (its echo)."""
+
+    TYPE = 10
+    BODY = struct.Struct('<ddd3HBB3d3d32s512s64s')
+    mass_kg: float = 0.0  # chaser mass [kg]
+    thrust_n: float = 0.0  # nominal force of each of the six thrusters [N]
+    min_impulse_bit_s: float = 0.0  # shortest pulse a valve makes [s]
+    horizon: tuple[int, ...] = field(default_factory=lambda: (0,) * 3)  # echo: prediction horizon N per phase (rendezvous, approach, docking); 0 from the host
+    status: int = 0  # echo: 0 applied, 1 refused (text says why); 0 from the host
+    pinned: int = 0  # echo: bit 0 mass, bit 1 thrust, bit 2 minimum impulse bit kept from the flight command line
+    period_s: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 3)  # echo: control period Ts per phase [s]; 0 from the host
+    u_max_mps: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 3)  # echo: largest |delta-v| per axis per period, per phase [m/s]; 0 from the host
+    law: str = ""  # echo: name of the guidance law; empty from the host
+    settings: str = ""  # guidance settings as NAME=VALUE separated by ';' (flight --set names; echo: as applied)
+    text: str = ""  # echo: why it was refused; empty otherwise
+
+
+@dataclass
+class Law:
+    """What the guidance law reported for one step besides its command, or what went wrong with it (flight -> host, only when there is something)."""
+
+    TYPE = 11
+    BODY = struct.Struct('<IBBHI384s16d')
+    step: int = 0  # the nav step of the cmd this belongs to
+    fault: int = 0  # 0 none, 1 step returned an error, 2 NaN/Inf, 3 out of limit, 4 overrun, 5 allocated, 6 crashed (disabled), 7 blocked past its period (disabled), 8 disabled
+    n_values: int = 0  # named values used (<= 16)
+    reserved: int = 0  # 0
+    faults: int = 0  # law faults so far in this run
+    names: str = ""  # the values' names, separated by ','
+    values: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 16)  # the named values, in the order of names
+
+
+MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Nav, Cmd, Telemetry, Bye, Obstacles, ObstacleStatus, Config, Law,)}
 
 # Field layout per class: (name, kind, count) with kind 'str', 'f64' or 'int'.
 _LAYOUT = {
@@ -216,6 +253,8 @@ _LAYOUT = {
     Bye: (('reason', 'int', 1), ('reserved', 'int', 3), ('last_step', 'int', 1), ('text', 'str', 64),),
     Obstacles: (('step', 'int', 1), ('count', 'int', 1), ('sensed', 'int', 1), ('t_s', 'f64', 1), ('id', 'int', 8), ('t_seen_s', 'f64', 8), ('position_lvlh_m', 'f64', 24), ('velocity_lvlh_mps', 'f64', 24), ('semi_axes_m', 'f64', 24), ('q_lvlh_body', 'f64', 32),),
     ObstacleStatus: (('step', 'int', 1), ('received', 'int', 1), ('held', 'int', 1), ('capacity', 'int', 1), ('reserved', 'int', 1), ('dropped_total', 'int', 1), ('rejected_total', 'int', 1), ('held_id', 'int', 8),),
+    Config: (('mass_kg', 'f64', 1), ('thrust_n', 'f64', 1), ('min_impulse_bit_s', 'f64', 1), ('horizon', 'int', 3), ('status', 'int', 1), ('pinned', 'int', 1), ('period_s', 'f64', 3), ('u_max_mps', 'f64', 3), ('law', 'str', 32), ('settings', 'str', 512), ('text', 'str', 64),),
+    Law: (('step', 'int', 1), ('fault', 'int', 1), ('n_values', 'int', 1), ('reserved', 'int', 1), ('faults', 'int', 1), ('names', 'str', 384), ('values', 'f64', 16),),
 }
 
 

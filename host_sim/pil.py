@@ -105,6 +105,18 @@ def error_model_args(sim: Simulator) -> list[str]:
             "--finite-burns", "off" if sim.impulsive else "on"]
 
 
+def write_law_values(run_dir: Path, values: list) -> None:
+    """The guidance law's named values per step (rvd_guidance.h, rvd_guidance_output.named) as
+    law_values.csv: step, name, value; nothing when the law logged none."""
+    if not values:
+        return
+    with open(Path(run_dir) / "law_values.csv", "w", encoding="utf-8") as f:
+        f.write("step,name,value\n")
+        for step, named in values:
+            for name, v in named.items():
+                f.write(f"{step},{name},{v!r}\n")
+
+
 def default_run_dir(scenario_name: str, root: Path | str = "runs") -> Path:
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     return Path(root) / f"{stamp}-{scenario_name}-{uuid.uuid4().hex[:6]}"
@@ -226,5 +238,7 @@ def run_pil(
                                                        "session")},
             flight_telemetry=None if s.telemetry is None else vars(s.telemetry),
             safety=s.safety,
+            flight_config=s.flight_config, law_faults=s.law_faults,
         )
+        write_law_values(run_dir, s.law_values)
     return summary, run_dir

@@ -108,6 +108,9 @@ class Scenario:
     sensors: SensorParams = field(default_factory=SensorParams)
     safety: SafetyLimits = field(default_factory=SafetyLimits)
     obstacles: tuple[Obstacle, ...] = ()  # ellipsoidal keep-out zones ([[obstacles]]; host_sim.obstacles)
+    # [guidance]: flight software settings by their --set names (rvd_flight_sw --list-params), sent to it
+    # with the vehicle at the start of a run; the flight software refuses a name it does not know.
+    guidance: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (JSON-ready) of every parameter, for run records. No obstacles: no "obstacles"
@@ -131,7 +134,7 @@ _SECTIONS = {
     "sensors": SensorParams,
     "safety": SafetyLimits,
 }
-_TOP_LEVEL = {"name", "description", "timeout_s", "obstacles"}
+_TOP_LEVEL = {"name", "description", "timeout_s", "obstacles", "guidance"}
 
 
 def _plain(obj):
@@ -194,7 +197,7 @@ def from_dict(data: dict[str, Any], source: str = "<dict>") -> Scenario:
         raise ScenarioError(str(exc)) from None
     scenario = Scenario(name=str(data["name"]), description=str(data.get("description", "")),
                         timeout_s=_number(data.get("timeout_s", 12000.0), f"{source} timeout_s"), obstacles=obstacles,
-                        **parts)
+                        guidance=_guidance_section(data.get("guidance", {}), f"{source} [guidance]"), **parts)
     validate(scenario, source)
     return scenario
 
@@ -223,6 +226,29 @@ def _build_section(cls, table: dict[str, Any], where: str):
         else:
             values[key] = _number(value, f"{where} {key}")
     return cls(**values)
+
+
+def _guidance_section(table, where: str) -> dict:
+    """The [guidance] table: NAME = number, on/off boolean, choice name or list of numbers."""
+    if not isinstance(table, dict):
+        raise ScenarioError(f"{where}: must be a table of flight software settings (NAME = VALUE)")
+    out = {}
+    for key, value in table.items():
+        if not key or not all(c.isalnum() or c in "._" for c in key):
+            raise ScenarioError(f"{where} {key!r}: a setting name has letters, digits, '.' and '_' "
+                                "(see rvd_flight_sw --list-params)")
+        if isinstance(value, dict):
+            raise ScenarioError(f"{where} {key}: write dotted names (e.g. \"rendezvous.N\" = 30), not sub-tables")
+        if isinstance(value, list):
+            value = [_number(v, f"{where} {key}") for v in value]
+        elif isinstance(value, str):
+            if not value or any(c in value for c in ";=\n"):
+                raise ScenarioError(f"{where} {key}: {value!r} is not a setting value")
+        elif not isinstance(value, bool):
+            value = _number(value, f"{where} {key}")
+            value = int(value) if value == int(value) and abs(value) < 1e15 and isinstance(table[key], int) else value
+        out[key] = value
+    return out
 
 
 def validate(s: Scenario, source: str = "<scenario>") -> None:

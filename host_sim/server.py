@@ -41,7 +41,13 @@ from host_sim.safety import UNITS as SAFETY_UNITS, SafetyMonitor, describe as de
 PHASE_NAMES = {1: "rendezvous", 2: "approach", 3: "docking", 4: "docked"}
 SOLVER_STATUS = {0: "solved", 1: "max_iter", 2: "infeasible", 3: "invalid_input", 4: "numerical_error",
                  5: "time_limit", 255: "not_run"}
-GUIDANCE_STATUS = {0: "ok", 1: "shifted_plan", 2: "zero_thrust", 3: "invalid_state", 4: "docked", 5: "recovered"}
+GUIDANCE_STATUS = {0: "ok", 1: "shifted_plan", 2: "zero_thrust", 3: "invalid_state", 4: "docked", 5: "recovered",
+                   6: "law_fault"}
+#: What went wrong with a guidance law's step (the law message's fault; flight_sw/app LawFault).
+LAW_FAULTS = {1: "step returned an error", 2: "NaN or Inf in the command", 3: "command outside the phase's limits",
+              4: "step returned after its budget", 5: "step allocated heap memory",
+              6: "step crashed (signal); law disabled", 7: "step still running at the end of its period; law disabled",
+              8: "law disabled"}
 
 
 def free_tcp_port(host: str = "127.0.0.1") -> int:
@@ -142,7 +148,7 @@ class ZenohLink:
         # the telemetry sent before it); the flight side's order is part of the protocol.
         # allowed_origin REMOTE: the host's own bye (same key) is not delivered back to it.
         for kind, cls in (("hello", msg.Hello), ("cmd", msg.Cmd), ("telemetry", msg.Telemetry), ("bye", msg.Bye),
-                          ("obstacle_status", msg.ObstacleStatus)):
+                          ("obstacle_status", msg.ObstacleStatus), ("config_echo", msg.Config), ("law", msg.Law)):
             self._subs.append(self.session.declare_subscriber(
                 msg.key(kind, self.run_id),
                 z.handlers.Callback(lambda sample, kind=kind, cls=cls: self._on_sample(sample, kind, cls),
@@ -226,6 +232,11 @@ class ServerConfig:
     # outside its command line (host_sim.pil), never written to the record.
     link_key: bytes | None = field(default=None, repr=False)
     drop_nav: Callable[[int, int], bool] = field(default=lambda k, attempt: False)  # fault injection
+    # One configuration: the scenario's vehicle and [guidance] settings go to the flight software after
+    # its hello (config message); the run starts only when its echo names the vehicle the truth
+    # simulates, unless a mismatch is asked for (a robustness study: the flight plans with another one).
+    send_config: bool = True
+    allow_vehicle_mismatch: bool = False
 
     def host_speed_dependent(self, hello=None) -> dict:
         """The settings whose effect depends on how fast this host (or the emulator on it) runs,
@@ -274,6 +285,9 @@ class RunSummary:
     host_speed_dependent: dict = field(default_factory=dict)
     events: list = field(default_factory=list)
     safety: dict = field(default_factory=dict)    # host_sim.safety.SafetyMonitor.summary(): verdict on truth
+    flight_config: Optional[dict] = None          # the flight software's config echo: what it plans with
+    law_faults: int = 0                           # guidance law faults (the harness commanded zero thrust)
+    law_values: list = field(default_factory=list)  # (step, {name: value}) the law logged
 
     def table(self) -> str:
         lines = [f"{'phase':<12}{'delta-v [m/s]':>15}{'time [s]':>12}"]
@@ -317,6 +331,28 @@ def check_cmd(cmd, hello, step: int, last_phase: int) -> Optional[str]:
         if p > cap * (1 + 1e-12):
             return f"pulse_s[{j}] = {p!r} s is longer than the declared {cap!r} s"
     return None
+
+
+def settings_text(guidance: dict) -> str:
+    """A scenario's [guidance] table as the config message's settings: NAME=VALUE;... with the flight
+    software's --set names (numbers in full precision, lists comma-separated, booleans on/off)."""
+    def text(v) -> str:
+        if isinstance(v, bool):
+            return "on" if v else "off"
+        if isinstance(v, (list, tuple)):
+            return ",".join(text(x) for x in v)
+        if isinstance(v, float):
+            return repr(v)
+        return str(v)
+    return ";".join(f"{k}={text(v)}" for k, v in guidance.items())
+
+
+def vehicle_mismatch(echo, scenario) -> Optional[str]:
+    """How the vehicle the flight software plans with (its config echo) differs from the truth's, or None."""
+    truth = {"mass_kg": scenario.chaser.mass_kg, "thrust_n": scenario.thrusters.force_n,
+             "min_impulse_bit_s": scenario.thrusters.minimum_impulse_bit_s}
+    diff = [f"{k} {getattr(echo, k)!r} (truth {v!r})" for k, v in truth.items() if getattr(echo, k) != v]
+    return ", ".join(diff) or None
 
 
 def check_hello(hello) -> Optional[str]:
@@ -430,9 +466,70 @@ class PilServer:
             self._take_telemetry(message)
         elif isinstance(message, msg.ObstacleStatus):
             self._take_obstacle_status(message)
+        elif isinstance(message, msg.Law):
+            self._take_law(message)
+        elif isinstance(message, msg.Config):
+            return message
         elif isinstance(message, (msg.Cmd, msg.Bye, InvalidMessage)):
             return message
         return None
+
+    def _take_law(self, m) -> None:
+        """A guidance law's named values for a step (kept for the record), or a law fault (an event)."""
+        if m.fault:
+            self.summary.law_faults = max(self.summary.law_faults, m.faults)
+            n = self._rejection_events["law_fault"] = self._rejection_events.get("law_fault", 0) + 1
+            if n <= self.MAX_REJECTION_EVENTS:
+                self.event("law_fault", f"step {m.step}: {LAW_FAULTS.get(m.fault, m.fault)}: the flight software "
+                                        "commanded zero thrust", step=m.step)
+            elif n == self.MAX_REJECTION_EVENTS + 1:
+                self.event("law_fault_cap", f"more than {self.MAX_REJECTION_EVENTS} law faults; only counted from now on")
+        if m.n_values:
+            names = m.names.split(",")[:m.n_values]
+            self.summary.law_values.append((m.step, dict(zip(names, m.values[:m.n_values]))))
+
+    def _configure(self) -> bool:
+        """Send the scenario's vehicle and guidance settings, take the echo and the hello that follows it;
+        False (the run's end set) when the flight software refuses them or plans with another vehicle."""
+        cfg, s, sc = self.cfg, self.summary, self.sim.scenario
+        settings = settings_text(getattr(sc, "guidance", {}) or {})
+        host = msg.Config(mass_kg=float(sc.chaser.mass_kg), thrust_n=float(sc.thrusters.force_n),
+                          min_impulse_bit_s=float(sc.thrusters.minimum_impulse_bit_s), settings=settings)
+        self.link.put("config", host)
+        deadline = time.monotonic() + cfg.hello_timeout_s
+        echo, hello = None, None
+        while (echo is None or hello is None) and time.monotonic() < deadline:
+            before = s.hello
+            m = self._take(self.link.get(min(deadline - time.monotonic(), 0.2)))
+            if isinstance(m, msg.Config):
+                echo = m
+            elif isinstance(m, InvalidMessage):
+                s.end = f"flight fault: invalid {m.kind} ({m.reason})"
+                self.event("flight_fault", s.end)
+                return False
+            elif echo is not None and s.hello is not before:
+                hello = s.hello
+            if echo is None and self.flight_exited() is not None and self.inbox_empty():
+                break
+        if echo is None or hello is None:
+            s.end = "flight software did not answer the configuration"
+            self.event("fault", f"no config echo and hello within {cfg.hello_timeout_s:g} s")
+            return False
+        s.flight_config = {k: getattr(echo, k) for k in msg.field_names(msg.Config)}
+        self.event("flight_config", f"law {echo.law}: mass {echo.mass_kg!r} kg, thrust {echo.thrust_n!r} N, "
+                                    f"minimum impulse bit {echo.min_impulse_bit_s!r} s, horizons {tuple(echo.horizon)}, "
+                                    f"periods {tuple(echo.period_s)} s, settings '{echo.settings}'")
+        if echo.status != 0:
+            s.end = f"flight software refused the configuration: {echo.text}"
+            self.event("config_refused", s.end)
+            return False
+        if (why := vehicle_mismatch(echo, sc)) is not None:
+            if not cfg.allow_vehicle_mismatch:
+                s.end = f"vehicle mismatch: the flight software plans with {why}"
+                self.event("vehicle_mismatch", s.end + "; refused (allow a mismatch explicitly for a robustness study)")
+                return False
+            self.event("vehicle_mismatch", f"allowed: the flight software plans with {why}")
+        return True
 
     def _take_telemetry(self, t) -> None:
         """Keep the newest telemetry; record what the flight software dropped since the last one."""
@@ -599,6 +696,13 @@ class PilServer:
             s.end = f"flight fault: invalid hello ({why})"
             self.event("flight_fault", s.end)
             return
+        if cfg.send_config:
+            if not self._configure():
+                return
+            if (why := check_hello(s.hello)) is not None:
+                s.end = f"flight fault: invalid hello ({why})"
+                self.event("flight_fault", s.end)
+                return
         last_period = float(s.hello.period_s[0])  # until a cmd says otherwise: the rendezvous period
         last_phase = 1
         wall0 = time.monotonic()

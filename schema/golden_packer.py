@@ -70,6 +70,14 @@ MESSAGES = [
     ("obstacle_status", 17, "flight", 12, [
         ("step", "I", 7), ("received", "H", 3), ("held", "H", 2), ("capacity", "H", 4), ("reserved", "H", 0),
         ("dropped_total", "I", 1), ("rejected_total", "I", 2), ("held_id", "8I", [9, 5] + [0] * 6)]),
+    ("config", 10, "flight", 2, [
+        ("mass_kg", "d", 20.0), ("thrust_n", "d", 1.0), ("min_impulse_bit_s", "d", 0.01),
+        ("horizon", "3H", [30, 15, 12]), ("status", "B", 0), ("pinned", "B", 2),
+        ("period_s", "3d", [30.0, 20.0, 5.0]), ("u_max_mps", "3d", [0.1786, 0.1786, 0.0357]),
+        ("law", "32s", "fast_mpc_3phase"), ("settings", "512s", "rendezvous.N=30;recovery=off"), ("text", "64s", "")]),
+    ("law", 11, "flight", 43, [
+        ("step", "I", 42), ("fault", "B", 2), ("n_values", "B", 2), ("reserved", "H", 0), ("faults", "I", 3),
+        ("names", "384s", "dv_norm_mps,tgo_s"), ("values", "16d", [0.125, 600.5] + [0.0] * 14)]),
 ]
 
 

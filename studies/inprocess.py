@@ -64,6 +64,9 @@ class InProcessLink:
                 self.answered += 1
                 if self.answered % TELEMETRY_EVERY == 0:
                     self._arrive(self.app.telemetry())
+        elif kind == "config":  # the echo, then a hello with the limits the configuration implies
+            self._arrive(self.app.apply_config(msg.encode(message)))
+            self._arrive(self.app.hello(1))
         elif kind == "bye":  # the flight software answers bye with its final telemetry and its own bye
             self._arrive(self.app.telemetry())
             self.inbox.put((time.monotonic(), msg.Bye(reason=0, last_step=self.last_step,

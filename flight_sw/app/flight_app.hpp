@@ -1,6 +1,7 @@
 // The flight software as a program: link (Zenoh client + message codec) -> guidance -> link.
 //
-// On every nav message it runs one guidance step under a deadline (a fraction of the phase's control
+// On every nav message it runs one step of its guidance law (a plug-in behind
+// flight_sw/include/rvd_guidance.h; the three-phase MPC by default) under a deadline (a fraction of the phase's control
 // period, on the flight computer's own clock), publishes the cmd, and keeps the per-phase solve-time
 // log that it also sends as telemetry. A nav it already answered (a resend after a lost message) is
 // answered again from the cached cmd, so a resend never changes the trajectory. Every message it
@@ -24,6 +25,7 @@
 #include "flight_sw/app/pmu_counter.hpp"
 #include "flight_sw/app/solve_marker.hpp"
 #include "flight_sw/guidance/guidance.hpp"
+#include "flight_sw/include/rvd_guidance.h"
 #include "flight_sw/link/messages.hpp"
 #include "flight_sw/link/zenoh_session.hpp"
 #include "flight_sw/nav/nav_filter.hpp"
@@ -41,7 +43,21 @@ struct AppConfig {
   // A nav more than this many steps beyond the last one answered is dropped (counted as future),
   // never adopted: the host numbers its steps 0, 1, 2, ... and only ever moves to the next one.
   uint32_t max_step_ahead = 16;
+  // The harness's view of guidance: vehicle, per-phase period, horizon and delta-v limit, geometry
+  // (every law gets them in its rvd_guidance_config), and the built-in MPC's full parameters.
   guidance::GuidanceParams guidance;
+  // The law: nullptr is the built-in three-phase MPC (guidance::mpc_law()); a plug-in executable
+  // passes rvd_guidance_law_entry(). law_params: its --set law.NAME=VALUE parameters.
+  const rvd_guidance_law* law = nullptr;
+  std::vector<rvd_named_value> law_params;
+  // Catch a law's crash (SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT) and a step still running at the
+  // end of its period (SIGALRM) and disable the law instead of dying: the flight executable turns it
+  // on; an embedding process (the Python module) keeps its own signal handlers.
+  bool guard_law = false;
+  // The options this configuration was parsed from, parsed again with --set NAME=VALUE assignments
+  // put before them (so the command line still wins: what it sets is pinned). The host's config
+  // message is applied through it (main.cpp sets it); empty: config messages are refused.
+  std::function<AppConfig(const std::vector<std::string>& sets)> reparse;
   // The navigation filter between the measurements and the guidance; its noise settings are the
   // error model's (the host passes the scenario's sensor and thrust models).
   nav::NavFilterParams nav_filter;
@@ -85,6 +101,11 @@ struct PhaseLog {
   std::array<uint64_t, 3> instructions{};
   void add(int phase_index, uint32_t step, double solve_us, bool overrun, uint64_t insns);
 };
+
+// What went wrong with a law's step (the harness then commanded zero thrust): cmd guidance_status
+// law_fault, counted in telemetry and logged.
+enum class LawFault : uint8_t { None = 0, Failed, NotFinite, OutOfLimit, Overrun, Allocated, Crashed, Blocked, Disabled };
+const char* to_string(LawFault f);
 
 enum class ExitReason { Bye = 0, Signal = 1, LinkLost = 3, Idle = 4, NeverConnected = 5 };  // LinkLost: the host is gone
 const char* to_string(ExitReason r);
@@ -134,6 +155,13 @@ class FlightApp {
   // to the guidance (the nearest it can hold) before its step; obstacle_status() then says what it holds.
   void receive_obstacles(const uint8_t* data, size_t size);
   msg::ObstacleStatus obstacle_status() const;
+  void receive_config(const uint8_t* data, size_t size);
+  // The host's vehicle and guidance settings: rebuilds the law with them (the command line wins for
+  // what it sets) and returns the echo, what the flight software now uses (status 1 and the reason
+  // when they cannot be applied; the previous configuration then stays).
+  msg::Config apply_config(const msg::Config& host);
+  // The law message of the last step (its named values and faults), if there is anything to say.
+  std::optional<msg::Law> law_message() const;
   // Takes the pending nav, if any.
   std::optional<msg::Nav> take_nav();
   bool bye_received() const { return bye_received_; }
@@ -141,6 +169,13 @@ class FlightApp {
   const PhaseLog& log() const { return log_; }
   msg::Telemetry telemetry() const;
   msg::Hello hello(uint32_t session) const;
+  const char* law_name() const { return law_->name ? law_->name : "unnamed"; }
+  // Law faults so far, by kind (index LawFault), and the last one.
+  const std::array<uint32_t, 9>& law_faults() const { return law_faults_; }
+  LawFault last_law_fault() const { return last_fault_; }
+  // The law's named telemetry values of the last step.
+  const rvd_guidance_output& last_law_output() const { return law_out_; }
+  ~FlightApp();
 
  private:
   template <class M> void publish_msg(const char* kind, const M& m);
@@ -150,7 +185,20 @@ class FlightApp {
 
   AppConfig cfg_;
   msg::LinkAuth auth_;
-  std::unique_ptr<guidance::Guidance> guidance_;
+  // Runs the law's step under the harness's guard; fills law_out_. Returns what went wrong.
+  LawFault step_law(const rvd_nav_input& in, double budget_s, double hard_limit_s, double& step_us);
+  void create_law();  // from cfg_ (throws std::invalid_argument)
+  msg::Config config_echo() const;
+
+  const rvd_guidance_law* law_ = nullptr;
+  void* law_state_ = nullptr;
+  bool law_disabled_ = false;
+  guidance::Phase phase_ = guidance::Phase::Rendezvous;  // the law's phase after its last step
+  rvd_guidance_output law_out_{};
+  std::array<uint32_t, 9> law_faults_{};
+  uint32_t law_faults_total_ = 0;
+  std::optional<msg::Config> pending_echo_;  // to publish (run loop)
+  LawFault last_fault_ = LawFault::None;
   std::unique_ptr<nav::NavFilter> nav_filter_;
   std::unique_ptr<link::ZenohSession> session_;
   SolveCounter counter_;
@@ -162,7 +210,10 @@ class FlightApp {
   msg::Obstacles pending_obstacles_{};
   bool have_obstacles_ = false, obstacle_status_due_ = false;
   uint32_t obstacles_step_ = 0, obstacles_received_ = 0, obstacles_rejected_ = 0;
-  void take_obstacles(const Eigen::Vector3d& chaser_lvlh_m);
+  // The pending obstacles into the law's input; after its step, what it holds (for obstacle_status).
+  void put_obstacles(rvd_nav_input& li) const;
+  void note_obstacles_held(const rvd_nav_input& li);
+  msg::ObstacleStatus obstacles_held_{};
   InputCounters dropped_;
   uint32_t drops_noted_ = 0;
   uint32_t overruns_ = 0;

@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "flight_sw/app/flight_app.hpp"
+#include "flight_sw/include/rvd_guidance.h"
 #include "flight_sw/nav/margins.hpp"
 
 namespace {
@@ -60,7 +61,9 @@ Guidance
   --tol X                   solver tolerance (converged mode)
   --barrier K               barrier weight (fixed_barrier mode)
   --deadline-fraction F     solve budget = F x Ts of the phase, on this computer's clock (default 0.5)
-  --set NAME=VALUE          any guidance parameter (--list-params shows them)
+  --set NAME=VALUE          any guidance or vehicle parameter (--list-params shows them with
+                            their values; vectors comma-separated, choices by name); a plug-in
+                            law's own parameters as --set law.NAME=VALUE
 Error model (navigation filter and robustness margins)
   --nav-sigma P,V           measurement noise, 1 sigma per LVLH axis [m, m/s] (default 0,0:
                             noise-free sensors, the filter passes measurements through)
@@ -108,48 +111,139 @@ double parse_double(const std::string& s, const std::string& what) {
 
 using AppConfig = rvd::app::AppConfig;
 
-// Named parameters for --set: every scalar a user may want to sweep.
-std::map<std::string, std::function<double&(AppConfig&)>> scalar_params() {
-  std::map<std::string, std::function<double&(AppConfig&)>> m;
-  m["orbit_altitude_m"] = [](AppConfig& c) -> double& { return c.guidance.orbit_altitude_m; };
-  m["keepout_radius_m"] = [](AppConfig& c) -> double& { return c.guidance.keepout_radius_m; };
-  m["approach_stop_m"] = [](AppConfig& c) -> double& { return c.guidance.approach_stop_m; };
-  m["dock_tolerance_m"] = [](AppConfig& c) -> double& { return c.guidance.dock_tolerance_m; };
-  m["v_max_mps"] = [](AppConfig& c) -> double& { return c.guidance.v_max_mps; };
-  m["rendezvous_setpoint_offset_m"] = [](AppConfig& c) -> double& { return c.guidance.rendezvous_setpoint_offset_m; };
-  m["approach_setpoint_offset_m"] = [](AppConfig& c) -> double& { return c.guidance.approach_setpoint_offset_m; };
-  m["rendezvous_switch_margin_m"] = [](AppConfig& c) -> double& { return c.guidance.rendezvous_switch_margin_m; };
-  m["approach_switch_margin_m"] = [](AppConfig& c) -> double& { return c.guidance.approach_switch_margin_m; };
-  m["obstacle_margin_m"] = [](AppConfig& c) -> double& { return c.guidance.obstacle_margin_m; };
-  m["obstacle_penalty"] = [](AppConfig& c) -> double& { return c.guidance.obstacle_penalty; };
-  m["obstacle_penalty_quadratic"] = [](AppConfig& c) -> double& { return c.guidance.obstacle_penalty_quadratic; };
-  m["keepout_rate_cap_factor"] = [](AppConfig& c) -> double& { return c.guidance.keepout_rate_cap_factor; };
-  m["port_body_x_m"] = [](AppConfig& c) -> double& { return c.guidance.port_body_m.x(); };
-  m["port_body_y_m"] = [](AppConfig& c) -> double& { return c.guidance.port_body_m.y(); };
-  m["port_body_z_m"] = [](AppConfig& c) -> double& { return c.guidance.port_body_m.z(); };
-  m["nav.accel_noise_mps2_rthz"] = [](AppConfig& c) -> double& { return c.nav_filter.accel_noise_mps2_rthz; };
-  m["nav.gate_chi2"] = [](AppConfig& c) -> double& { return c.nav_filter.gate_chi2; };
-  m["nav.thrust_error_tau_s"] = [](AppConfig& c) -> double& { return c.nav_filter.thrust_error_tau_s; };
-  m["margins.input_fraction"] = [](AppConfig& c) -> double& { return c.guidance.margins.input_fraction; };
-  m["recovery_speed_factor"] = [](AppConfig& c) -> double& { return c.guidance.recovery_speed_factor; };
-  m["margins.plan_reserve_fraction"] = [](AppConfig& c) -> double& { return c.guidance.margins.plan_reserve_fraction; };
-  m["margins.keepout_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.keepout_m; };
-  m["margins.estimate_sigmas"] = [](AppConfig& c) -> double& { return c.guidance.margins.estimate_sigmas; };
-  m["margins.approach_entry_brake_fraction"] = [](AppConfig& c) -> double& { return c.guidance.margins.approach_entry_brake_fraction; };
-  m["margins.approach_speed_cap_mps"] = [](AppConfig& c) -> double& { return c.guidance.margins.approach_speed_cap_mps; };
-  m["margins.rotating_cone_factor"] = [](AppConfig& c) -> double& { return c.guidance.margins.rotating_cone_factor; };
-  m["margins.overshoot_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.overshoot_m; };
-  m["margins.approach_cone_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.approach_cone_m; };
-  m["margins.docking_cone_m"] = [](AppConfig& c) -> double& { return c.guidance.margins.docking_cone_m; };
-  m["margins.v_max_mps"] = [](AppConfig& c) -> double& { return c.guidance.margins.v_max_mps; };
+// A named parameter for --set: read and written as text (a number, a comma-separated vector, or a
+// name for a choice), so that vectors (Q, R) and choices (terminal weight, objective) are settable too.
+struct Param {
+  std::function<std::string(const AppConfig&)> get;
+  std::function<void(AppConfig&, const std::string&)> set;
+};
+
+std::string format_number(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
+
+Param scalar(std::function<double&(AppConfig&)> ref) {
+  return {[ref](const AppConfig& c) { return format_number(ref(const_cast<AppConfig&>(c))); },
+          [ref](AppConfig& c, const std::string& v) { ref(c) = parse_double(v, "value"); }};
+}
+
+template <int N, class Vec>
+Param vector_param(std::function<Vec&(AppConfig&)> ref) {
+  return {[ref](const AppConfig& c) {
+            const Vec& v = ref(const_cast<AppConfig&>(c));
+            std::string out;
+            for (int i = 0; i < N; ++i) out += (i ? "," : "") + format_number(v(i));
+            return out;
+          },
+          [ref](AppConfig& c, const std::string& text) {
+            const auto v = split_numbers(text, N, "value");
+            for (int i = 0; i < N; ++i) ref(c)(i) = v[i];
+          }};
+}
+
+Param integer(std::function<int&(AppConfig&)> ref) {
+  return {[ref](const AppConfig& c) { return std::to_string(ref(const_cast<AppConfig&>(c))); },
+          [ref](AppConfig& c, const std::string& v) {
+            const double d = parse_double(v, "value");
+            if (d != std::floor(d) || std::abs(d) > 1e6) throw std::invalid_argument("not an integer: '" + v + "'");
+            ref(c) = static_cast<int>(d);
+          }};
+}
+
+// A choice among names (also accepted: the index).
+template <class T>
+Param choice(std::function<T&(AppConfig&)> ref, std::vector<std::string> names) {
+  return {[ref, names](const AppConfig& c) { return names.at(static_cast<size_t>(ref(const_cast<AppConfig&>(c)))); },
+          [ref, names](AppConfig& c, const std::string& v) {
+            for (size_t i = 0; i < names.size(); ++i)
+              if (v == names[i] || v == std::to_string(i)) {
+                ref(c) = static_cast<T>(i);
+                return;
+              }
+            std::string all;
+            for (const auto& n : names) all += (all.empty() ? "" : ", ") + n;
+            throw std::invalid_argument("'" + v + "' is not one of " + all);
+          }};
+}
+
+Param flag(std::function<bool&(AppConfig&)> ref) {
+  return {[ref](const AppConfig& c) { return std::string(ref(const_cast<AppConfig&>(c)) ? "on" : "off"); },
+          [ref](AppConfig& c, const std::string& v) {
+            if (v == "on" || v == "1" || v == "true") ref(c) = true;
+            else if (v == "off" || v == "0" || v == "false") ref(c) = false;
+            else throw std::invalid_argument("on or off, got '" + v + "'");
+          }};
+}
+
+// Named parameters for --set: every guidance, vehicle and filter setting a user may want to sweep.
+std::map<std::string, Param> named_params() {
+  std::map<std::string, Param> m;
+  auto d = [&m](const std::string& name, std::function<double&(AppConfig&)> ref) { m[name] = scalar(std::move(ref)); };
+  d("orbit_altitude_m", [](AppConfig& c) -> double& { return c.guidance.orbit_altitude_m; });
+  d("keepout_radius_m", [](AppConfig& c) -> double& { return c.guidance.keepout_radius_m; });
+  d("approach_stop_m", [](AppConfig& c) -> double& { return c.guidance.approach_stop_m; });
+  d("dock_tolerance_m", [](AppConfig& c) -> double& { return c.guidance.dock_tolerance_m; });
+  d("dock_cone_tolerance_m", [](AppConfig& c) -> double& { return c.guidance.dock_cone_tolerance_m; });
+  d("v_max_mps", [](AppConfig& c) -> double& { return c.guidance.v_max_mps; });
+  d("rendezvous_setpoint_offset_m", [](AppConfig& c) -> double& { return c.guidance.rendezvous_setpoint_offset_m; });
+  d("approach_setpoint_offset_m", [](AppConfig& c) -> double& { return c.guidance.approach_setpoint_offset_m; });
+  d("rendezvous_switch_margin_m", [](AppConfig& c) -> double& { return c.guidance.rendezvous_switch_margin_m; });
+  d("approach_switch_margin_m", [](AppConfig& c) -> double& { return c.guidance.approach_switch_margin_m; });
+  d("obstacle_margin_m", [](AppConfig& c) -> double& { return c.guidance.obstacle_margin_m; });
+  d("obstacle_penalty", [](AppConfig& c) -> double& { return c.guidance.obstacle_penalty; });
+  d("obstacle_penalty_quadratic", [](AppConfig& c) -> double& { return c.guidance.obstacle_penalty_quadratic; });
+  d("keepout_rate_cap_factor", [](AppConfig& c) -> double& { return c.guidance.keepout_rate_cap_factor; });
+  d("port_body_x_m", [](AppConfig& c) -> double& { return c.guidance.port_body_m.x(); });
+  d("port_body_y_m", [](AppConfig& c) -> double& { return c.guidance.port_body_m.y(); });
+  d("port_body_z_m", [](AppConfig& c) -> double& { return c.guidance.port_body_m.z(); });
+  // The vehicle the guidance plans with and the harness allocates for (the scenario's, sent by the host).
+  d("thrusters.mass_kg", [](AppConfig& c) -> double& { return c.guidance.thrusters.mass_kg; });
+  d("thrusters.thrust_N", [](AppConfig& c) -> double& { return c.guidance.thrusters.thrust_N; });
+  d("thrusters.min_impulse_bit_s", [](AppConfig& c) -> double& { return c.guidance.thrusters.min_impulse_bit_s; });
+  m["rendezvous_objective"] = choice<rvd::guidance::RendezvousObjective>(
+      [](AppConfig& c) -> rvd::guidance::RendezvousObjective& { return c.guidance.rendezvous_objective; },
+      {"quadratic", "one_norm"});
+  m["rendezvous_use_setpoint"] = flag([](AppConfig& c) -> bool& { return c.guidance.rendezvous_use_setpoint; });
+  m["keepout_direction"] = choice<rvd::guidance::KeepoutDirection>(
+      [](AppConfig& c) -> rvd::guidance::KeepoutDirection& { return c.guidance.keepout_direction; },
+      {"natural_motion", "shortest"});
+  m["recovery"] = flag([](AppConfig& c) -> bool& { return c.guidance.recovery; });
+  d("recovery_weight", [](AppConfig& c) -> double& { return c.guidance.recovery_weight; });
+  d("recovery_quadratic", [](AppConfig& c) -> double& { return c.guidance.recovery_quadratic; });
+  d("recovery_speed_factor", [](AppConfig& c) -> double& { return c.guidance.recovery_speed_factor; });
+  d("max_iter_accept_residual", [](AppConfig& c) -> double& { return c.guidance.max_iter_accept_residual; });
+  d("nav.accel_noise_mps2_rthz", [](AppConfig& c) -> double& { return c.nav_filter.accel_noise_mps2_rthz; });
+  d("nav.gate_chi2", [](AppConfig& c) -> double& { return c.nav_filter.gate_chi2; });
+  d("nav.thrust_error_tau_s", [](AppConfig& c) -> double& { return c.nav_filter.thrust_error_tau_s; });
+  d("margins.input_fraction", [](AppConfig& c) -> double& { return c.guidance.margins.input_fraction; });
+  d("margins.plan_reserve_fraction", [](AppConfig& c) -> double& { return c.guidance.margins.plan_reserve_fraction; });
+  d("margins.keepout_m", [](AppConfig& c) -> double& { return c.guidance.margins.keepout_m; });
+  d("margins.estimate_sigmas", [](AppConfig& c) -> double& { return c.guidance.margins.estimate_sigmas; });
+  d("margins.approach_entry_brake_fraction", [](AppConfig& c) -> double& { return c.guidance.margins.approach_entry_brake_fraction; });
+  d("margins.approach_speed_cap_mps", [](AppConfig& c) -> double& { return c.guidance.margins.approach_speed_cap_mps; });
+  d("margins.rotating_cone_factor", [](AppConfig& c) -> double& { return c.guidance.margins.rotating_cone_factor; });
+  d("margins.overshoot_m", [](AppConfig& c) -> double& { return c.guidance.margins.overshoot_m; });
+  d("margins.approach_cone_m", [](AppConfig& c) -> double& { return c.guidance.margins.approach_cone_m; });
+  d("margins.docking_cone_m", [](AppConfig& c) -> double& { return c.guidance.margins.docking_cone_m; });
+  d("margins.v_max_mps", [](AppConfig& c) -> double& { return c.guidance.margins.v_max_mps; });
   const char* phases[] = {"rendezvous", "approach", "docking"};
   for (int i = 0; i < 3; ++i) {
-    auto pick = [i](GuidanceParams& g) -> PhaseParams& { return i == 0 ? g.rendezvous : i == 1 ? g.approach : g.docking; };
+    auto pick = [i](AppConfig& c) -> PhaseParams& {
+      return i == 0 ? c.guidance.rendezvous : i == 1 ? c.guidance.approach : c.guidance.docking;
+    };
     const std::string p = phases[i];
-    m[p + ".Ts_s"] = [pick](AppConfig& c) -> double& { return pick(c.guidance).Ts_s; };
-    m[p + ".lambda"] = [pick](AppConfig& c) -> double& { return pick(c.guidance).lambda; };
-    m[p + ".los_half_angle_deg"] = [pick](AppConfig& c) -> double& { return pick(c.guidance).los_half_angle_deg; };
-    m[p + ".u_max_mps"] = [pick](AppConfig& c) -> double& { return pick(c.guidance).u_max_mps; };
+    m[p + ".N"] = integer([pick](AppConfig& c) -> int& { return pick(c).N; });
+    d(p + ".Ts_s", [pick](AppConfig& c) -> double& { return pick(c).Ts_s; });
+    m[p + ".Q"] = vector_param<6, rvd::guidance::Vector6d>([pick](AppConfig& c) -> rvd::guidance::Vector6d& { return pick(c).Q_diag; });
+    m[p + ".R"] = vector_param<3, Eigen::Vector3d>([pick](AppConfig& c) -> Eigen::Vector3d& { return pick(c).R_diag; });
+    m[p + ".terminal_weight"] = choice<rvd::guidance::TerminalWeight>(
+        [pick](AppConfig& c) -> rvd::guidance::TerminalWeight& { return pick(c).terminal_weight; }, {"stage", "dare"});
+    d(p + ".lambda", [pick](AppConfig& c) -> double& { return pick(c).lambda; });
+    d(p + ".los_half_angle_deg", [pick](AppConfig& c) -> double& { return pick(c).los_half_angle_deg; });
+    d(p + ".u_max_mps", [pick](AppConfig& c) -> double& { return pick(c).u_max_mps; });
   }
   return m;
 }
@@ -198,11 +292,11 @@ std::function<void(uint8_t*, size_t)> cmd_fault(const std::string& spec) {
 
 rvd::app::AppConfig parse(int argc, char** argv, bool& list_only, std::string& key_file) {
   rvd::app::AppConfig cfg;
-  auto params = scalar_params();
+  auto params = named_params();
   bool have_run = false;
   rvd::nav::ErrorModel errors;
   bool auto_margins = true;
-  std::vector<std::pair<std::string, double>> overrides;  // --set, applied after the derived margins
+  std::vector<std::pair<std::string, std::string>> overrides;  // --set, applied after the derived margins
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto value = [&]() -> std::string {
@@ -248,9 +342,26 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only, std::string& k
       const size_t eq = kv.find('=');
       if (eq == std::string::npos) throw std::invalid_argument("--set needs NAME=VALUE, got '" + kv + "'");
       const std::string name = kv.substr(0, eq);
+      if (name.rfind("law.", 0) == 0) {  // a plug-in law's own parameter, handed to it in its config
+        const std::string law_name = name.substr(4);
+        if (law_name.empty() || law_name.size() >= RVD_NAME_SIZE)
+          throw std::invalid_argument("--set " + name + ": a law parameter name has 1 to " +
+                                      std::to_string(RVD_NAME_SIZE - 1) + " characters");
+        rvd_named_value nv{};
+        std::snprintf(nv.name, sizeof nv.name, "%s", law_name.c_str());
+        nv.value = parse_double(kv.substr(eq + 1), name);
+        cfg.law_params.push_back(nv);
+        continue;
+      }
       if (params.find(name) == params.end())
         throw std::invalid_argument("--set: unknown parameter '" + name + "' (see --list-params)");
-      overrides.emplace_back(name, parse_double(kv.substr(eq + 1), name));
+      AppConfig probe = cfg;  // the value is checked here, so a bad one names its parameter
+      try {
+        params[name].set(probe, kv.substr(eq + 1));
+      } catch (const std::invalid_argument& e) {
+        throw std::invalid_argument("--set " + name + ": " + e.what());
+      }
+      overrides.emplace_back(name, kv.substr(eq + 1));
     } else if (a == "--nav-sigma") {
       const auto v = split_numbers(value(), 2, "--nav-sigma");
       errors.sigma_position_m = v[0];
@@ -282,14 +393,29 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only, std::string& k
   cfg.nav_filter.thrust_error_sigma = errors.thrust_error_sigma;
   cfg.nav_filter.finite_burns = errors.finite_burns;
   cfg.guidance.finite_burns = errors.finite_burns;
-  for (const auto& [name, v] : overrides) params[name](cfg) = v;  // e.g. the horizon first
+  for (const auto& [name, v] : overrides) params[name].set(cfg, v);  // e.g. the horizon first
   if (auto_margins) cfg.guidance.margins = rvd::nav::derive_margins(errors, cfg.guidance);
-  for (const auto& [name, v] : overrides) params[name](cfg) = v;  // and an explicit margin wins
+  for (const auto& [name, v] : overrides) params[name].set(cfg, v);  // and an explicit margin wins
   if (list_only) {
-    for (auto& [name, ref] : params) std::printf("%-34s %g\n", name.c_str(), ref(cfg));
+    for (auto& [name, p] : params) std::printf("%-34s %s\n", name.c_str(), p.get(cfg).c_str());
     return cfg;
   }
   if (!have_run) throw std::invalid_argument("--run RUN_ID is required");
+  // The host's config message is applied by parsing these options again behind its --set pairs.
+  std::vector<std::string> args(argv + 1, argv + argc);
+  cfg.reparse = [args](const std::vector<std::string>& sets) {
+    std::vector<std::string> storage{"rvd_flight_sw"};
+    for (const std::string& kv : sets) {
+      storage.push_back("--set");
+      storage.push_back(kv);
+    }
+    storage.insert(storage.end(), args.begin(), args.end());
+    std::vector<char*> av;
+    for (std::string& a : storage) av.push_back(a.data());
+    bool list = false;
+    std::string kf;
+    return parse(static_cast<int>(av.size()), av.data(), list, kf);
+  };
   if (!rvd::msg::check_run_id(cfg.run_id))
     throw std::invalid_argument("--run '" + cfg.run_id + "': 1 to " + std::to_string(rvd::msg::kRunIdMax) +
                                 " characters from A-Z a-z 0-9 _ - (no wildcards, no '/', not empty)");
@@ -321,6 +447,8 @@ int main(int argc, char** argv) {
   std::string key_file, key_error;
   try {
     cfg = parse(argc, argv, list_only, key_file);
+    cfg.law = rvd_guidance_law_entry();  // the law this executable was built with
+    cfg.guard_law = true;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "rvd_flight_sw: %s\n\n%s", e.what(), kUsage);
     return 2;

@@ -38,6 +38,8 @@ enum class Type : uint8_t {
   Bye = 5,
   Obstacles = 16,
   ObstacleStatus = 17,
+  Config = 10,
+  Law = 11,
 };
 
 enum class Error : uint8_t {
@@ -128,6 +130,8 @@ inline Error peek(const uint8_t* data, std::size_t n, Type& type) {
     case 5:
     case 16:
     case 17:
+    case 10:
+    case 11:
       break;
     default:
       return Error::UnknownType;
@@ -307,7 +311,7 @@ struct Cmd {
   static constexpr std::size_t kSize = kHeaderSize + kBodySize + kTagSize;
   uint32_t step = 0;  // the nav step this answers
   uint8_t phase = 0;  // 1 rendezvous, 2 approach, 3 docking, 4 docked
-  uint8_t guidance_status = 0;  // 0 ok, 1 shifted plan, 2 zero thrust, 3 invalid state, 4 docked, 5 recovered (elastic QP)
+  uint8_t guidance_status = 0;  // 0 ok, 1 shifted plan, 2 zero thrust, 3 invalid state, 4 docked, 5 recovered (elastic QP), 6 law fault (zero thrust)
   uint8_t solver_status = 0;  // 0 solved, 1 max_iter, 2 infeasible, 3 invalid_input, 4 numerical_error, 5 time_limit, 255 not run
   uint8_t overrun = 0;  // 1 when this solve exceeded its deadline
   double period_s = 0;  // control period Ts until the next nav [s]
@@ -705,6 +709,152 @@ inline Error decode(const uint8_t* data, std::size_t n, ObstacleStatus& m) {
   return Error::None;
 }
 
+// The run's vehicle and guidance settings (host -> flight), or what the flight software uses (its echo).
+struct Config {
+  static constexpr Type kType = Type::Config;
+  static constexpr std::size_t kBodySize = 688;
+  static constexpr std::size_t kSize = kHeaderSize + kBodySize + kTagSize;
+  double mass_kg = 0;  // chaser mass [kg]
+  double thrust_n = 0;  // nominal force of each of the six thrusters [N]
+  double min_impulse_bit_s = 0;  // shortest pulse a valve makes [s]
+  std::array<uint16_t, 3> horizon{};  // echo: prediction horizon N per phase (rendezvous, approach, docking); 0 from the host
+  uint8_t status = 0;  // echo: 0 applied, 1 refused (text says why); 0 from the host
+  uint8_t pinned = 0;  // echo: bit 0 mass, bit 1 thrust, bit 2 minimum impulse bit kept from the flight command line
+  std::array<double, 3> period_s{};  // echo: control period Ts per phase [s]; 0 from the host
+  std::array<double, 3> u_max_mps{};  // echo: largest |delta-v| per axis per period, per phase [m/s]; 0 from the host
+  std::array<char, 32> law{};  // echo: name of the guidance law; empty from the host
+  std::array<char, 512> settings{};  // guidance settings as NAME=VALUE separated by ';' (flight --set names; echo: as applied)
+  std::array<char, 64> text{};  // echo: why it was refused; empty otherwise
+};
+
+// Writes Config::kSize bytes (nonce, sequence number and tag zero: LinkAuth::seal() fills them);
+// returns the size, or 0 and `err` when it cannot.
+inline std::size_t encode(const Config& m, uint8_t* out, std::size_t cap, Error* err = nullptr) {
+  Error e = Error::None;
+  if (out == nullptr || cap < Config::kSize) e = Error::BufferTooSmall;
+  if (!std::isfinite(m.mass_kg)) e = Error::NonFinite;
+  if (!std::isfinite(m.thrust_n)) e = Error::NonFinite;
+  if (!std::isfinite(m.min_impulse_bit_s)) e = Error::NonFinite;
+  for (double v : m.period_s) if (!std::isfinite(v)) e = Error::NonFinite;
+  for (double v : m.u_max_mps) if (!std::isfinite(v)) e = Error::NonFinite;
+  if (err) *err = e;
+  if (e != Error::None) return 0;
+  uint8_t* p = out;
+  wire::put_header(p, Config::kType, Config::kBodySize);
+  wire::put(p, m.mass_kg);
+  wire::put(p, m.thrust_n);
+  wire::put(p, m.min_impulse_bit_s);
+  for (auto v : m.horizon) wire::put<uint16_t>(p, v);
+  wire::put<uint8_t>(p, m.status);
+  wire::put<uint8_t>(p, m.pinned);
+  for (auto v : m.period_s) wire::put(p, v);
+  for (auto v : m.u_max_mps) wire::put(p, v);
+  std::memcpy(p, m.law.data(), 32);
+  p += 32;
+  std::memcpy(p, m.settings.data(), 512);
+  p += 512;
+  std::memcpy(p, m.text.data(), 64);
+  p += 64;
+  std::memset(p, 0, kTagSize);
+  p += kTagSize;
+  return static_cast<std::size_t>(p - out);
+}
+
+// Decodes a whole config message; on error `m` is left unchanged. Checks the layout only:
+// a received message must pass LinkAuth::open() first (receive() does both).
+inline Error decode(const uint8_t* data, std::size_t n, Config& m) {
+  Type type;
+  Error e = peek(data, n, type);
+  if (e != Error::None) return e;
+  if (type != Config::kType) return Error::WrongType;
+  const uint8_t* h = data + 6;
+  if (wire::get<uint16_t>(h) != Config::kBodySize || n != Config::kSize) return Error::BadSize;
+  Config r;
+  const uint8_t* p = data + kHeaderSize;
+  r.mass_kg = wire::get<double>(p);
+  r.thrust_n = wire::get<double>(p);
+  r.min_impulse_bit_s = wire::get<double>(p);
+  for (auto& v : r.horizon) v = wire::get<uint16_t>(p);
+  r.status = wire::get<uint8_t>(p);
+  r.pinned = wire::get<uint8_t>(p);
+  for (auto& v : r.period_s) v = wire::get<double>(p);
+  for (auto& v : r.u_max_mps) v = wire::get<double>(p);
+  std::memcpy(r.law.data(), p, 32);
+  p += 32;
+  std::memcpy(r.settings.data(), p, 512);
+  p += 512;
+  std::memcpy(r.text.data(), p, 64);
+  p += 64;
+  if (!std::isfinite(r.mass_kg)) return Error::NonFinite;
+  if (!std::isfinite(r.thrust_n)) return Error::NonFinite;
+  if (!std::isfinite(r.min_impulse_bit_s)) return Error::NonFinite;
+  for (double v : r.period_s) if (!std::isfinite(v)) return Error::NonFinite;
+  for (double v : r.u_max_mps) if (!std::isfinite(v)) return Error::NonFinite;
+  m = r;
+  return Error::None;
+}
+
+// What the guidance law reported for one step besides its command, or what went wrong with it (flight -> host, only when there is something).
+struct Law {
+  static constexpr Type kType = Type::Law;
+  static constexpr std::size_t kBodySize = 524;
+  static constexpr std::size_t kSize = kHeaderSize + kBodySize + kTagSize;
+  uint32_t step = 0;  // the nav step of the cmd this belongs to
+  uint8_t fault = 0;  // 0 none, 1 step returned an error, 2 NaN/Inf, 3 out of limit, 4 overrun, 5 allocated, 6 crashed (disabled), 7 blocked past its period (disabled), 8 disabled
+  uint8_t n_values = 0;  // named values used (<= 16)
+  uint16_t reserved = 0;  // 0
+  uint32_t faults = 0;  // law faults so far in this run
+  std::array<char, 384> names{};  // the values' names, separated by ','
+  std::array<double, 16> values{};  // the named values, in the order of names
+};
+
+// Writes Law::kSize bytes (nonce, sequence number and tag zero: LinkAuth::seal() fills them);
+// returns the size, or 0 and `err` when it cannot.
+inline std::size_t encode(const Law& m, uint8_t* out, std::size_t cap, Error* err = nullptr) {
+  Error e = Error::None;
+  if (out == nullptr || cap < Law::kSize) e = Error::BufferTooSmall;
+  for (double v : m.values) if (!std::isfinite(v)) e = Error::NonFinite;
+  if (err) *err = e;
+  if (e != Error::None) return 0;
+  uint8_t* p = out;
+  wire::put_header(p, Law::kType, Law::kBodySize);
+  wire::put<uint32_t>(p, m.step);
+  wire::put<uint8_t>(p, m.fault);
+  wire::put<uint8_t>(p, m.n_values);
+  wire::put<uint16_t>(p, m.reserved);
+  wire::put<uint32_t>(p, m.faults);
+  std::memcpy(p, m.names.data(), 384);
+  p += 384;
+  for (auto v : m.values) wire::put(p, v);
+  std::memset(p, 0, kTagSize);
+  p += kTagSize;
+  return static_cast<std::size_t>(p - out);
+}
+
+// Decodes a whole law message; on error `m` is left unchanged. Checks the layout only:
+// a received message must pass LinkAuth::open() first (receive() does both).
+inline Error decode(const uint8_t* data, std::size_t n, Law& m) {
+  Type type;
+  Error e = peek(data, n, type);
+  if (e != Error::None) return e;
+  if (type != Law::kType) return Error::WrongType;
+  const uint8_t* h = data + 6;
+  if (wire::get<uint16_t>(h) != Law::kBodySize || n != Law::kSize) return Error::BadSize;
+  Law r;
+  const uint8_t* p = data + kHeaderSize;
+  r.step = wire::get<uint32_t>(p);
+  r.fault = wire::get<uint8_t>(p);
+  r.n_values = wire::get<uint8_t>(p);
+  r.reserved = wire::get<uint16_t>(p);
+  r.faults = wire::get<uint32_t>(p);
+  std::memcpy(r.names.data(), p, 384);
+  p += 384;
+  for (auto& v : r.values) v = wire::get<double>(p);
+  for (double v : r.values) if (!std::isfinite(v)) return Error::NonFinite;
+  m = r;
+  return Error::None;
+}
+
 // Fixed-size string fields: copy with truncation and zero padding; read up to the first zero.
 template <std::size_t N> inline void set_str(std::array<char, N>& dst, const std::string& s) {
   dst.fill(0);
@@ -726,6 +876,8 @@ inline std::size_t body_size(Type type) {
     case Type::Bye: return 72;
     case Type::Obstacles: return 944;
     case Type::ObstacleStatus: return 52;
+    case Type::Config: return 688;
+    case Type::Law: return 524;
   }
   return 0;
 }

@@ -61,6 +61,16 @@ void bind_app(py::module_& m) {
             return encoded(*cmd);
           },
           py::arg("nav"), "one encoded nav -> the encoded cmd (None for a nav older than the last answered)")
+      .def(
+          "apply_config",
+          [](FlightApp& app, const py::bytes& config) {
+            const std::string data = config;
+            msg::Config c;
+            const msg::Error e = msg::decode(reinterpret_cast<const uint8_t*>(data.data()), data.size(), c);
+            if (e != msg::Error::None) throw py::value_error(std::string("config: ") + msg::to_string(e));
+            return encoded(app.apply_config(c));
+          },
+          py::arg("config"), "one encoded config (vehicle and settings) -> the encoded echo")
       .def("hello", [](const FlightApp& app, uint32_t session) { return encoded(app.hello(session)); },
            py::arg("session") = 1, "the encoded hello message")
       .def("telemetry", [](const FlightApp& app) { return encoded(app.telemetry()); },

@@ -1,0 +1,146 @@
+#include "flight_sw/guidance/plugin/mpc_law.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <exception>
+#include <new>
+
+#include "flight_sw/guidance/guidance.hpp"
+
+namespace rvd::guidance {
+
+namespace {
+
+double finite_or(double v, double fallback) { return std::isfinite(v) ? v : fallback; }
+
+uint8_t solver_status_code(const Command& c) {
+  if (c.solver.status == solver::Status::TimeLimit) return static_cast<uint8_t>(c.solver.status);  // even unsolved
+  if (!c.solved) return RVD_SOLVER_NONE;
+  return static_cast<uint8_t>(c.solver.status);
+}
+
+GuidanceParams params_from(const rvd_guidance_config& c) {
+  if (c.native != nullptr) return *static_cast<const GuidanceParams*>(c.native);
+  GuidanceParams p;
+  p.thrusters.mass_kg = c.vehicle.mass_kg;
+  p.thrusters.thrust_N = c.vehicle.thrust_n;
+  p.thrusters.min_impulse_bit_s = c.vehicle.min_impulse_bit_s;
+  // The orbit altitude whose two-body mean motion is n (the guidance's parameter is the altitude).
+  if (c.mean_motion_rad_s > 0.0)
+    p.orbit_altitude_m = std::cbrt(kEarthMu_m3_s2 / (c.mean_motion_rad_s * c.mean_motion_rad_s)) - kEarthRadius_m;
+  PhaseParams* phases[3] = {&p.rendezvous, &p.approach, &p.docking};
+  for (int i = 0; i < 3; ++i) {
+    if (c.phase[i].period_s > 0.0) phases[i]->Ts_s = c.phase[i].period_s;
+    if (c.phase[i].dv_max_mps > 0.0) phases[i]->u_max_mps = c.phase[i].dv_max_mps;
+    if (c.phase[i].horizon > 0) phases[i]->N = static_cast<int>(c.phase[i].horizon);
+  }
+  if (c.keepout_radius_m > 0.0) p.keepout_radius_m = c.keepout_radius_m;
+  if (c.approach_stop_m > 0.0) p.approach_stop_m = c.approach_stop_m;
+  if (c.dock_tolerance_m > 0.0) p.dock_tolerance_m = c.dock_tolerance_m;
+  if (c.v_max_mps > 0.0) p.v_max_mps = c.v_max_mps;
+  if (c.approach_half_angle_deg > 0.0) p.rendezvous.los_half_angle_deg = p.approach.los_half_angle_deg = c.approach_half_angle_deg;
+  if (c.docking_half_angle_deg > 0.0) p.docking.los_half_angle_deg = c.docking_half_angle_deg;
+  p.port_body_m = Eigen::Vector3d(c.port_body_m[0], c.port_body_m[1], c.port_body_m[2]);
+  p.finite_burns = c.finite_burns != 0;
+  return p;
+}
+
+void* create(const rvd_guidance_config* config, char* error, size_t error_size) {
+  try {
+    return new Guidance(params_from(*config));
+  } catch (const std::exception& e) {
+    if (error && error_size) std::snprintf(error, error_size, "%s", e.what());
+  }
+  return nullptr;
+}
+
+void reset(void* law) { static_cast<Guidance*>(law)->reset(); }
+
+int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_output* out) {
+  auto& g = *static_cast<Guidance*>(law);
+  NavInput in;
+  in.step = nav->step;
+  in.t_s = nav->t_s;
+  for (int i = 0; i < 3; ++i) {
+    in.x_lvlh(i) = nav->position_lvlh_m[i];
+    in.x_lvlh(3 + i) = nav->velocity_lvlh_mps[i];
+  }
+  in.q_lvlh_body = Eigen::Quaterniond(nav->q_lvlh_body[0], nav->q_lvlh_body[1], nav->q_lvlh_body[2], nav->q_lvlh_body[3]);
+  in.omega_body_rad_s = Eigen::Vector3d(nav->omega_body_rad_s[0], nav->omega_body_rad_s[1], nav->omega_body_rad_s[2]);
+  in.quality.position_m = nav->sigma_position_m;
+  in.quality.velocity_mps = nav->sigma_velocity_mps;
+  for (int j = 0; j < 6; ++j) in.quality.thrust_scale[j] = nav->thrust_scale[j];
+  in.quality.thrust_scale_sigma = nav->thrust_scale_sigma;
+
+  if (nav->obstacles_fresh) {
+    std::array<Obstacle, RVD_MAX_OBSTACLES> list{};
+    const int n = static_cast<int>(std::min<uint32_t>(nav->n_obstacles, RVD_MAX_OBSTACLES));
+    for (int k = 0; k < n; ++k) {
+      const rvd_obstacle& src = nav->obstacles[k];
+      Obstacle& o = list[k];
+      o.id = src.id;
+      o.t_state_s = nav->obstacles_t_s;
+      o.t_seen_s = src.t_seen_s;
+      for (int j = 0; j < 3; ++j) {
+        o.position_lvlh_m(j) = src.position_lvlh_m[j];
+        o.velocity_lvlh_mps(j) = src.velocity_lvlh_mps[j];
+        o.semi_axes_m(j) = src.semi_axes_m[j];
+      }
+      o.q_lvlh_body = Eigen::Quaterniond(src.q_lvlh_body[0], src.q_lvlh_body[1], src.q_lvlh_body[2], src.q_lvlh_body[3]);
+    }
+    g.set_obstacles(list.data(), n, nav->obstacles_t_s, in.x_lvlh.head<3>());
+    // The host sensed more than it could send: those are left out too, for lack of wire capacity.
+    if (nav->obstacles_sensed > static_cast<uint32_t>(n)) g.count_dropped_obstacles(nav->obstacles_sensed - n);
+  }
+
+  const Command c = g.step(in, budget_s * 1e6);
+  for (int i = 0; i < 3; ++i) out->dv_lvlh_mps[i] = c.dv_cmd_mps(i);
+  out->phase = static_cast<uint8_t>(c.phase);
+  out->status = static_cast<uint8_t>(c.status);
+  out->solver_status = solver_status_code(c);
+  out->computed = c.solved ? 1 : 0;
+  out->iterations = static_cast<uint32_t>(c.solved ? c.solver.iterations : 0);
+  out->solve_time_us = c.solved ? finite_or(c.solver.solve_time_us, 0.0) : 0.0;
+  out->primal_residual = c.solved ? finite_or(c.solver.primal_residual, -1.0) : -1.0;
+  out->dual_residual = c.solved ? finite_or(c.solver.dual_residual, -1.0) : -1.0;
+  out->objective = c.solved ? finite_or(c.solver.objective, 0.0) : 0.0;
+  const ObstacleSet& held = g.obstacles();
+  out->obstacles_capacity = static_cast<uint32_t>(std::max(g.params().obstacle_capacity, 0));
+  out->obstacles_held = static_cast<uint32_t>(held.count);
+  out->obstacles_dropped_total = held.dropped_total;
+  out->obstacles_rejected_total = held.rejected_total;
+  for (int k = 0; k < held.count && k < RVD_MAX_OBSTACLES; ++k) out->obstacle_held_id[k] = held.items[k].id;
+  return 0;
+}
+
+void destroy(void* law) { delete static_cast<Guidance*>(law); }
+
+}  // namespace
+
+const rvd_guidance_law* mpc_law() {
+  static const rvd_guidance_law law{RVD_GUIDANCE_ABI_VERSION, "fast_mpc_3phase", create, reset, step, destroy};
+  return &law;
+}
+
+rvd_guidance_config generic_config(const GuidanceParams& p) {
+  rvd_guidance_config c{};
+  c.abi_version = RVD_GUIDANCE_ABI_VERSION;
+  c.vehicle = {p.thrusters.mass_kg, p.thrusters.thrust_N, p.thrusters.min_impulse_bit_s};
+  c.mean_motion_rad_s = p.mean_motion_rad_s();
+  const PhaseParams* phases[3] = {&p.rendezvous, &p.approach, &p.docking};
+  for (int i = 0; i < 3; ++i)
+    c.phase[i] = {phases[i]->Ts_s, phases[i]->u_max_mps, static_cast<uint32_t>(phases[i]->N), 0};
+  c.keepout_radius_m = p.keepout_radius_m;
+  c.approach_stop_m = p.approach_stop_m;
+  c.dock_tolerance_m = p.dock_tolerance_m;
+  c.v_max_mps = p.v_max_mps;
+  c.approach_half_angle_deg = p.approach.los_half_angle_deg;
+  c.docking_half_angle_deg = p.docking.los_half_angle_deg;
+  for (int i = 0; i < 3; ++i) c.port_body_m[i] = p.port_body_m(i);
+  c.finite_burns = p.finite_burns ? 1 : 0;
+  return c;
+}
+
+}  // namespace rvd::guidance

@@ -1,0 +1,19 @@
+// The three-phase MPC (flight_sw/guidance) as a guidance law behind the plug-in interface
+// (flight_sw/include/rvd_guidance.h): the flight executable's default law.
+#pragma once
+
+#include "flight_sw/guidance/params.hpp"
+#include "flight_sw/include/rvd_guidance.h"
+
+namespace rvd::guidance {
+
+// The law's table. create() takes its parameters from config->native (a GuidanceParams*, what the
+// flight executable's options made) when given, else the defaults of params.hpp with the vehicle,
+// orbit, per-phase period, horizon and delta-v limit and the geometry of the generic configuration.
+const rvd_guidance_law* mpc_law();
+
+// The generic configuration that describes `p` (the harness fills it from its parameters, so that
+// every law sees the same vehicle, periods and limits). `params`/`native` are left null.
+rvd_guidance_config generic_config(const GuidanceParams& p);
+
+}  // namespace rvd::guidance
