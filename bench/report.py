@@ -705,10 +705,16 @@ def write(out: Path) -> Path:
     table = stats_table(rows) if not rows.empty else pd.DataFrame()
     chk = checks(metas, df)
     table.to_csv(out / "stats.csv", index=False)
-    run_cols = ["dir", "target", "cpu", "mode", "kind", "scenario_label", "horizons", "end", "steps", "t_end_s",
+    run_cols = ["dir", "target", "cpu", "mode", "kind", "scenario_label", "end", "steps", "t_end_s",
                 "dv_total_mps", "nav_resends", "rejected_messages", "exe_size_bytes"]
-    runs = pd.DataFrame([{c: (str(m.get(c)) if isinstance(m.get(c), (list, tuple)) else m.get(c)) for c in run_cols}
+
+    def horizons(m):  # numbers, one column per phase (not the string "[30, 15, 12]")
+        h = list(m.get("horizons") or [None] * 3)
+        return {f"N_{ph}": (int(h[i]) if h[i] is not None else None) for i, ph in enumerate(PHASE_ORDER)}
+    runs = pd.DataFrame([{**{c: m.get(c) for c in run_cols[:6]}, **horizons(m), **{c: m.get(c) for c in run_cols[6:]}}
                          for m in metas])
+    for c in ("N_rendezvous", "N_approach", "N_docking"):
+        runs[c] = runs[c].astype("Int64")
     for m, (i, r) in zip(metas, runs.iterrows()):
         tel = m.get("flight_telemetry") or {}
         runs.loc[i, "peak_heap_kib"] = tel.get("peak_heap_bytes", math.nan) / 1024 if tel else math.nan

@@ -41,6 +41,11 @@ def test_verdict_rows_carry_the_margins_and_the_verdict(campaign):
     assert rows[("q7s", "approach")]["fits"] and rows[("q7s", "approach")]["safety_violations"] == 1
     assert rows[("q7s", "approach")]["pass"] is False
     assert rows[("q7s", "rendezvous")]["pass"] is True
+    # the runs table has the horizons as numbers, one column per phase
+    import pandas as pd
+
+    runs = pd.read_csv(out / "runs.csv")
+    assert runs[["N_rendezvous", "N_approach", "N_docking"]].drop_duplicates().values.tolist() == [[30, 15, 12]]
 
 
 def test_page_reads_as_a_verdict_first(campaign):
