@@ -107,6 +107,7 @@ def test_checks_are_a_table():
 
 @pytest.mark.parametrize("value,text", [(15000.0, "15\u2009000"), (0.012345, "0.0123"), (2.0, "2"),
                                         (1.5e4, "15\u2009000"), (123456.7, "123\u2009457"), (3.14159, "3.14"),
+                                        (16.04, "16.0"), (0.5, "0.5"), (2.13e-9, "2.13 \u00d7 10\u207b\u2079"),
                                         (float("nan"), "")])
 def test_numbers_are_readable(value, text):
     assert report._fmt(value) == text
