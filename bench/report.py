@@ -701,8 +701,14 @@ def _cpu_labels(metas: list[dict]) -> dict:
     return out
 
 
-def _link(text, href) -> Cell:
-    return Cell(text, href=href)
+def _img(out: Path, name: str, alt: str) -> str:
+    """The figure inside the page (a data: URI), so that report.html alone shows everything; the PNG
+    file stays beside it, and a click opens it."""
+    import base64
+
+    data = base64.b64encode((out / name).read_bytes()).decode()
+    return (f"<a href='{html.escape(name)}'><img src='data:image/png;base64,{data}' alt='{html.escape(alt)}' "
+            f"title='{html.escape(alt)} ({html.escape(name)})'></a>")
 
 
 def write(out: Path) -> Path:
@@ -881,8 +887,8 @@ def write(out: Path) -> Path:
                  "per horizon marked (dashed, in the colour of that horizon's curve). The red line is the "
                  "deadline. Log time axis; one curve per horizon N with its number of solves.</p>")
     for t, img in images:
-        parts.append(f"<h3 id='hist-{e(t)}'>{e(t)}: {e(cpu_labels.get(t, t))}</h3><img src='{img}' "
-                     f"alt='solve-time histograms for {e(t)}'>")
+        parts.append(f"<h3 id='hist-{e(t)}'>{e(t)}: {e(cpu_labels.get(t, t))}</h3>"
+                     + _img(out, img, f"solve-time histograms for {t}"))
 
     parts.append("<h2 id='dissertation'>Beside the dissertation</h2>")
     if not table.empty:
@@ -904,7 +910,7 @@ def write(out: Path) -> Path:
                              "ours QEMU wall, max [ms]": r["wall_ms_max"],
                              "ours estimated target, mean [ms]": r["target_ms_mean"]})
         parts.append(_table_html(pd.DataFrame(cmp_rows), table_id="dissertation-table"))
-        parts.append("<img src='scaling.png' alt='solve time against the horizon'>")
+        parts.append(_img(out, "scaling.png", "solve time against the horizon"))
         parts.append("<ul>" + "".join(f"<li>{e(k)}: estimated t(N = {v['N'][-1]}) / t(N = {v['N'][0]}) = "
                                       f"{_fmt(v['ratio_last_first'])}</li>" for k, v in scaling.items()) + "</ul>")
 
@@ -952,8 +958,8 @@ def write(out: Path) -> Path:
                      "(guest plus emulator), an upper bound.</p>")
     parts.append("<h2>Trajectories</h2>")
     for label, d, img in traj:
-        parts.append(f"<h3>{e(label)} (<a href='{e(d)}/meta.json'>run record</a>)</h3><img src='{img}' "
-                     f"alt='trajectory of {e(label)}'>")
+        parts.append(f"<h3>{e(label)} (<a href='{e(d)}/meta.json'>run record</a>)</h3>"
+                     + _img(out, img, f"trajectory of {label}"))
     parts.append("<h2 id='runs'>Runs</h2><p>Each run's record: <code>meta.json</code> (settings, versions, "
                  "summary, safety), <code>steps.csv</code> (one line per control step), <code>events.csv</code>, "
                  "<code>flight_sw.log</code>.</p>")

@@ -69,6 +69,10 @@ def test_page_reads_as_a_verdict_first(campaign):
     # provenance
     for needle in ("report commit", "SHA-256 0123456789abcdef", "GCC 12.2.0", "qemu-aarch64", "LLVM (llvm-mca)"):
         assert needle in text, needle
+    # the figures are inside the page (it works alone, offline), the PNG files beside it
+    imgs = re.findall(r"<img src='([^']{0,40})", page)
+    assert imgs and all(src.startswith("data:image/png;base64,") for src in imgs)
+    assert (out / "hist_rpi3.png").is_file() and "href='hist_rpi3.png'" in page
     # links to the run records
     assert "href='runs/q7s/random1-N30-15-12/meta.json'" in page
 
