@@ -233,23 +233,24 @@ def plot_histograms(rows: pd.DataFrame, target: str, path: Path, cpu_label: str)
             ax = axes[i, j]
             data = [(n, gp[gp["N"] == n][col].to_numpy() / 1e3) for n in sorted(gp["N"].unique())]
             data = [(n, d[d > 0]) for n, d in data if (d > 0).any()]
+            colors = {}
             if data:
                 lo = min(d.min() for _, d in data)
                 hi = max([d.max() for _, d in data] + ([deadline_ms] if math.isfinite(deadline_ms) else []))
                 bins = np.geomspace(lo / 1.2, hi * 1.2, 60)
                 for n, d in data:
-                    ax.hist(d, bins=bins, histtype="step", linewidth=1.6, label=f"N = {n}: {len(d)} solves")
+                    _, _, patches = ax.hist(d, bins=bins, histtype="step", linewidth=1.6, label=f"N = {n}: {len(d)} solves")
+                    colors[n] = patches[0].get_edgecolor()
                 ax.set_xscale("log")
                 ax.minorticks_off()  # labelled minor ticks of a log axis cost seconds each to lay out
             if math.isfinite(deadline_ms):
                 ax.axvline(deadline_ms, color="tab:red", lw=2, label=f"deadline {_fmt(deadline_ms)} ms (0.5 Ts)")
-            if i == 1:
+            if i == 1:  # the like-for-like reference: the dissertation's mean QEMU wall time, per horizon
                 for n, ms in DISSERTATION_MS.get(phase, {}).items():
-                    if n in gp["N"].unique():
-                        ax.axvline(ms, color="k", ls="--", lw=1)
-                        ax.text(ms, 0.97, f" dissertation N = {n}\n mean {_fmt(ms)} ms", transform=ax.get_xaxis_transform(),
-                                fontsize=7, va="top")
-            ax.legend(fontsize=8, loc="center left")
+                    if n in colors:
+                        ax.axvline(ms, color=colors[n], ls="--", lw=1.2,
+                                   label=f"dissertation N = {n}: mean {_fmt(ms)} ms")
+            ax.legend(fontsize=7, loc="upper right", framealpha=0.9)
             ax.set_xlabel(label)
             ax.set_ylabel("solves per bin")
             if i == 0:
@@ -332,10 +333,17 @@ def _fmt(v, digits: int = 3) -> str:
         return "0"
     if float(v).is_integer() and abs(v) < 1e15:
         return f"{int(v):,}".replace(",", "\u2009")
-    decimals = max(0, digits - 1 - int(math.floor(math.log10(abs(v)))))
+    exponent = int(math.floor(math.log10(abs(v))))
+    if exponent < -4:  # 2.13 x 10^-9, not 0.00000000213 (and never 2.13e-09)
+        mantissa = f"{v / 10 ** exponent:.{digits - 1}f}"
+        return f"{mantissa} \u00d7 10" + str(exponent).translate(str.maketrans("-0123456789", "\u207b\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079"))
+    decimals = max(0, digits - 1 - exponent)
     text = f"{v:,.{decimals}f}"
-    if "." in text:  # 0.500 -> 0.5, 2.50 -> 2.5: the significant figures, not padding
-        text = text.rstrip("0").rstrip(".")
+    short = decimals
+    while short > 0 and round(v, short - 1) == v:  # 0.500 -> 0.5 where the value is exactly that
+        short -= 1
+    if short < decimals:
+        text = f"{v:,.{short}f}"
     return text.replace(",", "\u2009")
 
 
@@ -381,6 +389,7 @@ h1{font-size:1.6em}h2{margin-top:1.8em;border-bottom:2px solid #ddd}
 table{border-collapse:collapse;font-size:13px;margin:.5em 0}
 caption{text-align:left;font-weight:bold;padding:.3em 0}
 td,th{border:1px solid #ccc;padding:3px 6px;text-align:right;white-space:nowrap}
+th{white-space:normal;vertical-align:bottom;max-width:11em}
 td.t{text-align:left}
 th{background:#eee;cursor:pointer;user-select:none}th.asc:after{content:" \25B2"}th.desc:after{content:" \25BC"}
 tbody tr:hover{background:#f4f8ff}
@@ -692,8 +701,14 @@ def _cpu_labels(metas: list[dict]) -> dict:
     return out
 
 
-def _link(text, href) -> Cell:
-    return Cell(text, href=href)
+def _img(out: Path, name: str, alt: str) -> str:
+    """The figure inside the page (a data: URI), so that report.html alone shows everything; the PNG
+    file stays beside it, and a click opens it."""
+    import base64
+
+    data = base64.b64encode((out / name).read_bytes()).decode()
+    return (f"<a href='{html.escape(name)}'><img src='data:image/png;base64,{data}' alt='{html.escape(alt)}' "
+            f"title='{html.escape(alt)} ({html.escape(name)})'></a>")
 
 
 def write(out: Path) -> Path:
@@ -705,10 +720,16 @@ def write(out: Path) -> Path:
     table = stats_table(rows) if not rows.empty else pd.DataFrame()
     chk = checks(metas, df)
     table.to_csv(out / "stats.csv", index=False)
-    run_cols = ["dir", "target", "cpu", "mode", "kind", "scenario_label", "horizons", "end", "steps", "t_end_s",
+    run_cols = ["dir", "target", "cpu", "mode", "kind", "scenario_label", "end", "steps", "t_end_s",
                 "dv_total_mps", "nav_resends", "rejected_messages", "exe_size_bytes"]
-    runs = pd.DataFrame([{c: (str(m.get(c)) if isinstance(m.get(c), (list, tuple)) else m.get(c)) for c in run_cols}
+
+    def horizons(m):  # numbers, one column per phase (not the string "[30, 15, 12]")
+        h = list(m.get("horizons") or [None] * 3)
+        return {f"N_{ph}": (int(h[i]) if h[i] is not None else None) for i, ph in enumerate(PHASE_ORDER)}
+    runs = pd.DataFrame([{**{c: m.get(c) for c in run_cols[:6]}, **horizons(m), **{c: m.get(c) for c in run_cols[6:]}}
                          for m in metas])
+    for c in ("N_rendezvous", "N_approach", "N_docking"):
+        runs[c] = runs[c].astype("Int64")
     for m, (i, r) in zip(metas, runs.iterrows()):
         tel = m.get("flight_telemetry") or {}
         runs.loc[i, "peak_heap_kib"] = tel.get("peak_heap_bytes", math.nan) / 1024 if tel else math.nan
@@ -863,11 +884,11 @@ def write(out: Path) -> Path:
     parts.append("<h2 id='distributions'>Solve-time distributions</h2><p>Top row: our estimated target time; bottom "
                  "row: the emulated wall time of the same solves (host time under qemu-user with the counting "
                  "plugins attached, which slow emulation), with the dissertation's mean CVXGEN QEMU wall time "
-                 "marked (dashed). The red line is the deadline. Log time axis; one curve per horizon N with "
-                 "its number of solves.</p>")
+                 "per horizon marked (dashed, in the colour of that horizon's curve). The red line is the "
+                 "deadline. Log time axis; one curve per horizon N with its number of solves.</p>")
     for t, img in images:
-        parts.append(f"<h3 id='hist-{e(t)}'>{e(t)}: {e(cpu_labels.get(t, t))}</h3><img src='{img}' "
-                     f"alt='solve-time histograms for {e(t)}'>")
+        parts.append(f"<h3 id='hist-{e(t)}'>{e(t)}: {e(cpu_labels.get(t, t))}</h3>"
+                     + _img(out, img, f"solve-time histograms for {t}"))
 
     parts.append("<h2 id='dissertation'>Beside the dissertation</h2>")
     if not table.empty:
@@ -889,7 +910,7 @@ def write(out: Path) -> Path:
                              "ours QEMU wall, max [ms]": r["wall_ms_max"],
                              "ours estimated target, mean [ms]": r["target_ms_mean"]})
         parts.append(_table_html(pd.DataFrame(cmp_rows), table_id="dissertation-table"))
-        parts.append("<img src='scaling.png' alt='solve time against the horizon'>")
+        parts.append(_img(out, "scaling.png", "solve time against the horizon"))
         parts.append("<ul>" + "".join(f"<li>{e(k)}: estimated t(N = {v['N'][-1]}) / t(N = {v['N'][0]}) = "
                                       f"{_fmt(v['ratio_last_first'])}</li>" for k, v in scaling.items()) + "</ul>")
 
@@ -937,8 +958,8 @@ def write(out: Path) -> Path:
                      "(guest plus emulator), an upper bound.</p>")
     parts.append("<h2>Trajectories</h2>")
     for label, d, img in traj:
-        parts.append(f"<h3>{e(label)} (<a href='{e(d)}/meta.json'>run record</a>)</h3><img src='{img}' "
-                     f"alt='trajectory of {e(label)}'>")
+        parts.append(f"<h3>{e(label)} (<a href='{e(d)}/meta.json'>run record</a>)</h3>"
+                     + _img(out, img, f"trajectory of {label}"))
     parts.append("<h2 id='runs'>Runs</h2><p>Each run's record: <code>meta.json</code> (settings, versions, "
                  "summary, safety), <code>steps.csv</code> (one line per control step), <code>events.csv</code>, "
                  "<code>flight_sw.log</code>.</p>")

@@ -157,7 +157,8 @@ class CampaignResult:
 
 
 def load_campaign(out: str | Path) -> CampaignResult:
-    """The DataFrames of a campaign folder whose report was written (report.json)."""
+    """The DataFrames of a campaign folder whose report was written (report.json); works from an
+    installed wheel too."""
     out = Path(out)
     rep = json.loads((out / "report.json").read_text())
     verdict = pd.DataFrame(rep["verdict"])
@@ -176,7 +177,11 @@ def run_campaign(targets: Sequence[str] = ("q7s", "rpi3"), *, out: str | Path = 
     """Run the PIL campaign of `make pil` (bench/campaign.py, from a checkout) into `out`, write its
     report and return its DataFrames. A folder holding another campaign is refused
     (bench.campaign.CampaignConflict) unless replace=True; the same settings resume."""
-    from bench import campaign
+    try:
+        from bench import campaign
+    except ImportError:
+        raise RuntimeError("the PIL campaign (bench/) runs from a checkout of rvd-pil, not from an installed "
+                           "wheel: run it there (make pil), then load_campaign(<its folder>)") from None
 
     argv = ["--targets", ",".join(targets), "--out", str(out)]
     argv += ["--cpu", cpu] if cpu else []

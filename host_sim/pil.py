@@ -75,7 +75,8 @@ def check_runs_here(exe: Path | str) -> None:
 
 def find_flight_executable(explicit: Optional[str] = None, name: str = FLIGHT_EXE_NAME) -> Path:
     """The native flight executable: `explicit` (which must exist: never replaced by another),
-    $RVD_FLIGHT_SW, this checkout's build/native, or PATH."""
+    $RVD_FLIGHT_SW, this checkout's build/native, the one an installed wheel bundles
+    (host_sim/bin), or PATH."""
     if explicit:
         path = Path(explicit)
         if not path.is_file():
@@ -84,12 +85,14 @@ def find_flight_executable(explicit: Optional[str] = None, name: str = FLIGHT_EX
             raise FlightLaunchError(f"flight executable {explicit}: not executable")
         return path
     candidates = [os.environ.get("RVD_FLIGHT_SW") if name == FLIGHT_EXE_NAME else None,
-                  str(REPO / "build" / "native" / "flight_sw" / name), shutil.which(name)]
+                  str(REPO / "build" / "native" / "flight_sw" / name), str(Path(__file__).resolve().parent / "bin" / name),
+                  shutil.which(name)]
     for c in candidates:
         if c and Path(c).is_file() and os.access(c, os.X_OK):
             return Path(c)
     raise FileNotFoundError(
-        f"no flight executable found (looked at --flight-sw, $RVD_FLIGHT_SW, {REPO / 'build/native/flight_sw'}, PATH); "
+        f"no flight executable found (looked at $RVD_FLIGHT_SW, {REPO / 'build/native/flight_sw'}, "
+        f"{Path(__file__).resolve().parent / 'bin'}, PATH); "
         "build it with `make build`"
     )
 

@@ -41,6 +41,11 @@ def test_verdict_rows_carry_the_margins_and_the_verdict(campaign):
     assert rows[("q7s", "approach")]["fits"] and rows[("q7s", "approach")]["safety_violations"] == 1
     assert rows[("q7s", "approach")]["pass"] is False
     assert rows[("q7s", "rendezvous")]["pass"] is True
+    # the runs table has the horizons as numbers, one column per phase
+    import pandas as pd
+
+    runs = pd.read_csv(out / "runs.csv")
+    assert runs[["N_rendezvous", "N_approach", "N_docking"]].drop_duplicates().values.tolist() == [[30, 15, 12]]
 
 
 def test_page_reads_as_a_verdict_first(campaign):
@@ -64,6 +69,10 @@ def test_page_reads_as_a_verdict_first(campaign):
     # provenance
     for needle in ("report commit", "SHA-256 0123456789abcdef", "GCC 12.2.0", "qemu-aarch64", "LLVM (llvm-mca)"):
         assert needle in text, needle
+    # the figures are inside the page (it works alone, offline), the PNG files beside it
+    imgs = re.findall(r"<img src='([^']{0,40})", page)
+    assert imgs and all(src.startswith("data:image/png;base64,") for src in imgs)
+    assert (out / "hist_rpi3.png").is_file() and "href='hist_rpi3.png'" in page
     # links to the run records
     assert "href='runs/q7s/random1-N30-15-12/meta.json'" in page
 
@@ -102,6 +111,7 @@ def test_checks_are_a_table():
 
 @pytest.mark.parametrize("value,text", [(15000.0, "15\u2009000"), (0.012345, "0.0123"), (2.0, "2"),
                                         (1.5e4, "15\u2009000"), (123456.7, "123\u2009457"), (3.14159, "3.14"),
+                                        (16.04, "16.0"), (0.5, "0.5"), (2.13e-9, "2.13 \u00d7 10\u207b\u2079"),
                                         (float("nan"), "")])
 def test_numbers_are_readable(value, text):
     assert report._fmt(value) == text

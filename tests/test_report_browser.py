@@ -39,6 +39,9 @@ def test_verdict_table_fits_1400px_without_script_errors(page_file):
         # every column heading of the verdict table is within the window
         heads = page.eval("Array.from(document.querySelectorAll('#verdict th')).map(th => th.getBoundingClientRect().right)")
         assert heads and max(heads) <= inner
+        # every figure decoded (they are embedded in the page: nothing to fetch)
+        assert page.eval("Array.from(document.images).every(i => i.complete && i.naturalWidth > 0)")
+        assert page.eval("document.images.length") >= 3
         shot = page.screenshot(page_file.parent / "report-1400px.png")
         assert page.errors == [], page.errors
     width, height = struct.unpack(">II", shot.read_bytes()[16:24])  # PNG IHDR
