@@ -221,7 +221,8 @@ def main(argv=None) -> int:
             print(f"  {m.path}: {m.old.strip()!r} -> {m.new.strip()!r}")
             print(f"  {'caught by ' + summarize(caught) if caught else 'SURVIVED'}  ({time.monotonic() - t0:.0f} s)\n",
                   flush=True)
-        ok, _ = c.rebuild()  # leave the copy as it was
+        if a.keep:
+            c.rebuild()  # leave the kept copy built as it was
         print(f"{sum(1 for _, c, _ in rows if c)} of {len(chosen)} mutations caught"
               + (f"; {survived} survived or did not apply" if survived else ""))
         return 1 if survived else 0
