@@ -12,6 +12,16 @@ copy only (the checkout's editable install is taken out of the import path). Eac
 textual edit that must apply exactly once; after it the copy is rebuilt incrementally, the tests
 run, and the edit is undone. Printed per mutation: the tests that failed ("caught by"), or SURVIVED.
 Exit status 1 when a mutation survives or does not apply.
+
+Measured (2 cores shared with other jobs; the copy's first build 26 min, each mutation 2-6 min): all six
+caught. cw_sign: test_guidance_cw, test_guidance_closed_loop (C++), and in Python the STM against expm,
+the phase QP dynamics, the log against the CW plant, the phase figures and the dissertation totals;
+dropped_overshoot_row: test_guidance_phase_qp, test_guidance_safety, the recovery QP against Clarabel;
+horizon_off_by_one: test_guidance_phase_qp, test_guidance_safety (the closed loop still docks with N - 1);
+thrust_unit: test_guidance_allocation, test_guidance_closed_loop, test_guidance_noalloc and five Python
+closed-loop tests; mib_unit: test_guidance_allocation only (the closed-loop allocation check has since
+been made two-sided to catch it as well); skipped_tag_check: test_link_messages and three forgery tests
+of tests/test_pil_integrity.py.
 """
 from __future__ import annotations
 
