@@ -19,8 +19,9 @@ the phase QP dynamics, the log against the CW plant, the phase figures and the d
 dropped_overshoot_row: test_guidance_phase_qp, test_guidance_safety, the recovery QP against Clarabel;
 horizon_off_by_one: test_guidance_phase_qp, test_guidance_safety (the closed loop still docks with N - 1);
 thrust_unit: test_guidance_allocation, test_guidance_closed_loop, test_guidance_noalloc and five Python
-closed-loop tests; mib_unit: test_guidance_allocation only (the closed-loop allocation check has since
-been made two-sided to catch it as well); skipped_tag_check: test_link_messages and three forgery tests
+closed-loop tests; mib_unit: test_guidance_allocation only, so the closed-loop allocation check was made two-sided:
+with it, tests/test_guidance_closed_loop.py::test_thrust_and_docking_limits (3 cases) fails too (checked on a
+module built with the mutation); skipped_tag_check: test_link_messages and three forgery tests
 of tests/test_pil_integrity.py.
 """
 from __future__ import annotations
