@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 import flight_sw as fsw
-from support.guidance_geometry import (DEG, RBAR, VBAR, in_pyramid, ocp_to_dense, quat_about_z, quat_after, rotate,
-                                      solve_clarabel, solve_proxsuite)
+from support.guidance_geometry import DEG, RBAR, VBAR, in_pyramid, quat_after, rotate, solve_clarabel, solve_proxsuite
 from support.qp_forms import from_dict
 
 # ---------------------------------------------------------------- the QPs checked
