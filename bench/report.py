@@ -83,7 +83,9 @@ def load_campaign(out: Path) -> tuple[list[dict], pd.DataFrame]:
 def solves(metas: list[dict], df: pd.DataFrame) -> pd.DataFrame:
     """One row per guidance step of the timing runs, with horizon, timing sources and budget."""
     by_dir = {m["dir"]: m for m in metas}
-    rows = df[(df["kind"] == "timing") & df["phase"].isin(PHASES) & (df["solver_status"] != 255)].copy()
+    # A step that computed: a solver ran, or a plug-in law without a solver took time (its solve_time_us).
+    rows = df[(df["kind"] == "timing") & df["phase"].isin(PHASES) &
+              ((df["solver_status"] != 255) | (df["solve_time_us"] > 0))].copy()
     if rows.empty:
         return rows
     rows["phase_name"] = rows["phase"].map(PHASES)

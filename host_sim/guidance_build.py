@@ -16,6 +16,7 @@ The law implements flight_sw/include/rvd_guidance.h and defines rvd_guidance_law
 """
 from __future__ import annotations
 
+import fcntl
 import re
 import subprocess
 import tomllib
@@ -145,10 +146,18 @@ def build_native(folder: str | Path, *, build_dir: Path | None = None, jobs: int
     """Builds the law natively; returns (executable, manifest)."""
     manifest = load_manifest(folder)
     bdir = Path(build_dir or REPO / "build" / "native")
-    register(manifest, bdir)
-    _run(["cmake", "-S", str(REPO), "-B", str(bdir), "-DCMAKE_BUILD_TYPE=Release", "-DRVD_BUILD_TESTS=ON"],
-         "configure", manifest)
-    _run(["cmake", "--build", str(bdir), f"-j{jobs}", "--target", manifest.program], "build", manifest)
+    bdir.mkdir(parents=True, exist_ok=True)
+    # One builder per build directory at a time (the lock file qemu/build.py uses for its trees).
+    with open(bdir / ".rvd-build.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        registration = register(manifest, bdir)
+        try:
+            _run(["cmake", "-S", str(REPO), "-B", str(bdir), "-DCMAKE_BUILD_TYPE=Release", "-DRVD_BUILD_TESTS=ON"],
+                 "configure", manifest)
+            _run(["cmake", "--build", str(bdir), f"-j{jobs}", "--target", manifest.program], "build", manifest)
+        except LawBuildError:
+            registration.unlink(missing_ok=True)  # a law that does not build stays out of the build tree
+            raise
     exe = bdir / "flight_sw" / manifest.program
     if not exe.is_file():
         raise LawBuildError(f"{manifest.folder / MANIFEST}: the build made no {exe}")
@@ -160,10 +169,11 @@ def build_cross(folder: str | Path, target, *, jobs: int = 2):
     from qemu import build as qbuild
 
     manifest = load_manifest(folder)
-    register(manifest, qbuild.build_dir(target))
+    registration = register(manifest, qbuild.build_dir(target))
     try:
         exe = qbuild.cross_build(target, manifest.program, jobs=jobs)
     except Exception as exc:  # the cross build's own error, as one line
+        registration.unlink(missing_ok=True)
         raise LawBuildError(f"{manifest.folder / MANIFEST}: cross build for {target.name} failed: "
                             f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     return exe, manifest

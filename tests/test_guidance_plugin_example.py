@@ -38,3 +38,13 @@ def test_the_example_law_docks_case1(tmp_path):
     assert t_go.loc[0] == pytest.approx(manifest.params["transfer_s"])
     assert t_go.loc[10] == pytest.approx(manifest.params["transfer_s"] - 10 * 30.0)
     assert set(steps["phase"].dropna().astype(int)) == {1, 2, 3, 4}
+
+
+def test_rvd_run_guidance_with_a_folder_without_a_law_is_one_line_exit_2(tmp_path):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "host_sim.cli", "case1_vbar", "--guidance", str(tmp_path), "-q"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=120)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and str(tmp_path / "law.toml") in lines[0], r.stderr

@@ -78,6 +78,8 @@ def test_a_law_folder_that_does_not_build_is_one_line_naming_its_manifest(tmp_pa
     with pytest.raises(LawBuildError) as e:
         build_native(tmp_path)
     assert str(tmp_path / "law.toml") in str(e.value) and "\n" not in str(e.value)
+    # ... and it does not stay in the build tree, whose other targets still configure and build.
+    assert not (ROOT / "build" / "native" / "guidance" / "broken.cmake").exists()
     (tmp_path / "law.toml").write_text('name = "broken"\nsource = ["broken.c"]\n')
     with pytest.raises(LawBuildError, match="unknown key.*source"):
         load_manifest(tmp_path)

@@ -61,8 +61,8 @@ struct Command {
   double port_distance_m = 0.0;    // distance to the docking port
 };
 
-// Called around every solver call of a step (the phase QP, and the recovery QP when it runs), so that
-// the flight executable can bracket exactly the solves with its instruction-count markers.
+// Called around every solver call of a step (the phase QP, and the recovery QP when it runs), for a
+// caller that wants the solves alone bracketed (the flight executable brackets the whole law step).
 class SolveObserver {
  public:
   virtual ~SolveObserver() = default;
