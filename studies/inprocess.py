@@ -93,6 +93,9 @@ def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int 
     """One run with the in-process flight application; the record has run_pil's layout and metadata."""
     import flight_sw
 
+    if scenario.obstacles:  # the in-process link carries nav and bye only: obstacles would go unseen
+        raise ValueError(f"scenario {scenario.name}: has obstacles, which the in-process path does not carry; "
+                         "run it with the flight executable (mode native)")
     sim = Simulator(scenario, truth=truth, seed=seed, sensor_noise=sensor_noise, thrust_noise=thrust_noise,
                     impulsive=impulsive, **(sim_options or {}))
     cfg = config or ServerConfig()
