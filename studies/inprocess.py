@@ -56,9 +56,13 @@ class InProcessLink:
         self.inbox.put((time.monotonic(), msg.decode(data)))
 
     def put(self, kind: str, message) -> None:
-        if kind == "nav":
+        if kind == "obstacles":
+            self.app.handle_obstacles(msg.encode(message))
+        elif kind == "nav":
             cmd = self.app.handle_nav(msg.encode(message))
             if cmd is not None:
+                if (status := self.app.take_obstacle_status()) is not None:  # before the cmd, as on the link
+                    self._arrive(status)
                 self._arrive(cmd)
                 self.last_step = message.step
                 self.answered += 1
@@ -83,7 +87,8 @@ def flight_options(sim: Simulator, settings: GuidanceSettings, run_id: str) -> l
     """The options run_pil gives the flight executable (but the link's): the run id, the error model
     of this run where the host passes one, then the study's guidance settings."""
     error_model = getattr(pil_module, "error_model_args", None)
-    return ["--run", run_id, *(error_model(sim) if error_model else []), *settings.flight_args()]
+    return ["--run", run_id, *(error_model(sim) if error_model else []),
+            *(["--obstacles", "on"] if sim.scenario.obstacles else []), *settings.flight_args()]
 
 
 def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int = 0, truth: str = "cw",
@@ -93,9 +98,6 @@ def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int 
     """One run with the in-process flight application; the record has run_pil's layout and metadata."""
     import flight_sw
 
-    if scenario.obstacles:  # the in-process link carries nav and bye only: obstacles would go unseen
-        raise ValueError(f"scenario {scenario.name}: has obstacles, which the in-process path does not carry; "
-                         "run it with the flight executable (mode native)")
     sim = Simulator(scenario, truth=truth, seed=seed, sensor_noise=sensor_noise, thrust_noise=thrust_noise,
                     impulsive=impulsive, **(sim_options or {}))
     cfg = config or ServerConfig()
