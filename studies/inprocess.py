@@ -56,9 +56,13 @@ class InProcessLink:
         self.inbox.put((time.monotonic(), msg.decode(data)))
 
     def put(self, kind: str, message) -> None:
-        if kind == "nav":
+        if kind == "obstacles":
+            self.app.handle_obstacles(msg.encode(message))
+        elif kind == "nav":
             cmd = self.app.handle_nav(msg.encode(message))
             if cmd is not None:
+                if (status := self.app.take_obstacle_status()) is not None:  # before the cmd, as on the link
+                    self._arrive(status)
                 self._arrive(cmd)
                 self.last_step = message.step
                 self.answered += 1
@@ -86,7 +90,8 @@ def flight_options(sim: Simulator, settings: GuidanceSettings, run_id: str) -> l
     """The options run_pil gives the flight executable (but the link's): the run id, the error model
     of this run where the host passes one, then the study's guidance settings."""
     error_model = getattr(pil_module, "error_model_args", None)
-    return ["--run", run_id, *(error_model(sim) if error_model else []), *settings.flight_args()]
+    return ["--run", run_id, *(error_model(sim) if error_model else []),
+            *(["--obstacles", "on"] if sim.scenario.obstacles else []), *settings.flight_args()]
 
 
 def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int = 0, truth: str = "cw",

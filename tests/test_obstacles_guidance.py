@@ -82,3 +82,25 @@ def test_the_papers_3d_scenario_reaches_the_holding_distance_clear_of_both_movin
     assert blind["reached"] and min(blind["clearance"].values()) < 1.0
     seen = seed.fly(seed.params(False, True), seed.OBSTACLES)
     assert seen["reached"] and min(seen["clearance"].values()) >= 1.0, seen["clearance"]
+
+
+def test_a_suddenly_appearing_obstacle_is_avoided_with_the_rotating_hyperplane():
+    """A 40 m sphere appears 300 s in, ~900 m ahead on Case 1's rendezvous path: the rotating
+    hyperplane (first facing the chaser, turning towards the target at 0.002 rad/s) keeps it clear.
+    The direct linearization, started from a plan through the sphere's centre, does not here (its
+    planes flip from stage to stage until the plan has left the centre): printed, not asserted."""
+    sudden = [Obstacle(id=5, semi_axes_m=(40.0, 40.0, 40.0), position_lvlh_m=(-240.0, -300.0, 0.0),
+                       appear_time_s=300.0)]
+    blind_worst, _, _, _ = fly(fsw.GuidanceParams(), 1, sudden, tell=False)
+    assert blind_worst[5] < 1.0
+    figures = {}
+    for method in (fsw.ObstacleMethod.RotatingHyperplane, fsw.ObstacleMethod.DirectLinearization):
+        p = fsw.GuidanceParams()
+        p.obstacle_capacity = fsw.MAX_OBSTACLES
+        p.obstacle_method = method
+        worst, docked, dv, _ = fly(p, 1, sudden)
+        assert docked
+        figures[method] = (worst[5], dv)
+    assert figures[fsw.ObstacleMethod.RotatingHyperplane][0] >= 1.0, figures
+    print(f"sudden obstacle: blind clearance {blind_worst[5]:.3f}; " +
+          ", ".join(f"{m}: clearance {c:.3f}, dv {dv:.2f} m/s" for m, (c, dv) in figures.items()))

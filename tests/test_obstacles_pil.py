@@ -63,3 +63,21 @@ def test_without_obstacle_rows_the_same_run_is_judged_unsafe(tmp_path):
     s = summary.safety
     assert s["verdict"] == "unsafe" and s["per_limit"]["obstacle"]["violations"] >= 1
     assert summary.obstacle_status.held == 0 and summary.obstacle_status.capacity == 0
+
+
+def test_the_in_process_path_flies_the_obstacles_as_the_executable_does(tmp_path):
+    """Studies' in-process fast path: the same obstacles message into the same C++ application, so the
+    same trajectory, the same clearance and the same obstacle_status as the native executable's run."""
+    from studies.inprocess import run_in_process
+    from studies.settings import GuidanceSettings
+
+    kw = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
+    native, _ = run_pil("case1_crossing_obstacle", config=ServerConfig(delay_model="none"),
+                        run_dir=tmp_path / "native", **kw)
+    inproc, _ = run_in_process(scenario.load("case1_crossing_obstacle"),
+                               GuidanceSettings(horizon=(30, 15, 12), period_s=(30.0, 20.0, 5.0)),
+                               config=ServerConfig(delay_model="none"), run_dir=tmp_path / "inproc", **kw)
+    assert inproc.end == native.end == "docked"
+    assert inproc.dv_total_mps == native.dv_total_mps
+    assert inproc.safety["figures"]["obstacles"] == native.safety["figures"]["obstacles"]
+    assert inproc.obstacle_status == native.obstacle_status

@@ -578,6 +578,10 @@ void FlightApp::receive_obstacles(const uint8_t* data, size_t size) {
     note_drop("obstacles", e, size);
     return;
   }
+  accept_obstacles(m);
+}
+
+void FlightApp::accept_obstacles(const msg::Obstacles& m) {
   if (m.count > m.id.size()) {  // more than the message holds: its own fault, not adopted
     ++obstacles_rejected_;
     note("obstacles for step %u refused: count %u > %zu slots", m.step, m.count, m.id.size());
@@ -711,8 +715,7 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
     if (auto nav = take_nav()) {
       t_last_nav = Clock::now();
       if (auto cmd = handle_nav(*nav)) {
-        if (obstacle_status_due_) publish_msg("obstacle_status", obstacle_status());
-        obstacle_status_due_ = false;
+        if (take_obstacle_status_due()) publish_msg("obstacle_status", obstacle_status());
         publish_msg("cmd", *cmd);
         if (auto lm = law_message()) publish_msg("law", *lm);
         if (++answered % static_cast<uint32_t>(std::max(cfg_.telemetry_every, 1)) == 0)

@@ -154,6 +154,7 @@ class FlightApp {
   // An obstacles message: checked like a nav, kept until the next nav is handled, which gives it
   // to the guidance (the nearest it can hold) before its step; obstacle_status() then says what it holds.
   void receive_obstacles(const uint8_t* data, size_t size);
+  void accept_obstacles(const msg::Obstacles& m);  // an authentic, decoded one (the in-process path)
   msg::ObstacleStatus obstacle_status() const;
   void receive_config(const uint8_t* data, size_t size);
   // The host's vehicle and guidance settings: rebuilds the law with them (the command line wins for
@@ -162,6 +163,12 @@ class FlightApp {
   msg::Config apply_config(const msg::Config& host);
   // The law message of the last step (its named values and faults), if there is anything to say.
   std::optional<msg::Law> law_message() const;
+  // True once after a step that took an obstacles message: its obstacle_status goes out before the cmd.
+  bool take_obstacle_status_due() {
+    const bool due = obstacle_status_due_;
+    obstacle_status_due_ = false;
+    return due;
+  }
   // Takes the pending nav, if any.
   std::optional<msg::Nav> take_nav();
   bool bye_received() const { return bye_received_; }

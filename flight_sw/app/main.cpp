@@ -70,8 +70,10 @@ Error model (navigation filter and robustness margins)
   --thrust-error-sigma S    1-sigma thrust amplitude error, fraction of the delta-v (default 0)
   --finite-burns on|off     thrusters burn for a finite time (default off: impulsive)
   --nav-filter on|off       Kalman filter between the measurements and the guidance (default on)
-  --obstacles on|off        plan around the obstacles the host reports (default off: obstacle
-                            messages are counted only, the QPs are the obstacle-free ones)
+  --obstacles on|off|hyperplane
+                            plan around the obstacles the host reports (on: direct linearization,
+                            hyperplane: rotating hyperplanes; default off: obstacle messages are
+                            counted only, the QPs are the obstacle-free ones)
   --margins auto|off        constraint margins derived from the error model (default auto),
                             or none (the nominal MPC); --set margins.*=... overrides one
   --trivial                 answer every nav with zero thrust at once (link latency benchmark)
@@ -195,6 +197,8 @@ std::map<std::string, Param> named_params() {
   d("obstacle_margin_m", [](AppConfig& c) -> double& { return c.guidance.obstacle_margin_m; });
   d("obstacle_penalty", [](AppConfig& c) -> double& { return c.guidance.obstacle_penalty; });
   d("obstacle_penalty_quadratic", [](AppConfig& c) -> double& { return c.guidance.obstacle_penalty_quadratic; });
+  d("hyperplane_rate_rad_s", [](AppConfig& c) -> double& { return c.guidance.hyperplane_rate_rad_s; });
+  d("hyperplane_active_range_m", [](AppConfig& c) -> double& { return c.guidance.hyperplane_active_range_m; });
   d("keepout_rate_cap_factor", [](AppConfig& c) -> double& { return c.guidance.keepout_rate_cap_factor; });
   d("port_body_x_m", [](AppConfig& c) -> double& { return c.guidance.port_body_m.x(); });
   d("port_body_y_m", [](AppConfig& c) -> double& { return c.guidance.port_body_m.y(); });
@@ -369,7 +373,13 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only, std::string& k
     } else if (a == "--thrust-error-sigma") errors.thrust_error_sigma = parse_double(value(), a);
     else if (a == "--finite-burns") errors.finite_burns = on_off(value(), a);
     else if (a == "--nav-filter") cfg.nav_filter.enabled = on_off(value(), a);
-    else if (a == "--obstacles") cfg.guidance.obstacle_capacity = on_off(value(), a) ? rvd::guidance::kMaxObstacles : 0;
+    else if (a == "--obstacles") {
+      const std::string m = value();
+      if (m != "on" && m != "off" && m != "hyperplane") throw std::invalid_argument("--obstacles: on, off or hyperplane");
+      cfg.guidance.obstacle_capacity = m == "off" ? 0 : rvd::guidance::kMaxObstacles;
+      cfg.guidance.obstacle_method = m == "hyperplane" ? rvd::guidance::ObstacleMethod::RotatingHyperplane
+                                                       : rvd::guidance::ObstacleMethod::DirectLinearization;
+    }
     else if (a == "--margins") {
       const std::string m = value();
       if (m != "auto" && m != "off") throw std::invalid_argument("--margins: auto or off");

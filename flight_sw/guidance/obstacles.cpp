@@ -39,6 +39,8 @@ double obstacle_surface_distance_m(const Obstacle& o, const Eigen::Vector3d& r, 
 void select_obstacles(const Obstacle* list, int n, const Eigen::Vector3d& chaser, double t_s, double n_rad_s,
                       ObstaclePrediction model, ObstacleSet& set) {
   std::array<double, kMaxObstacles> dist{};
+  const std::array<Obstacle, kMaxObstacles> before = set.items;  // to carry each held one's history
+  const int held_before = set.count;
   set.count = 0;
   set.received = static_cast<uint32_t>(std::max(n, 0));
   for (int k = 0; k < n; ++k) {
@@ -65,6 +67,34 @@ void select_obstacles(const Obstacle* list, int n, const Eigen::Vector3d& chaser
     dist[pos] = d;
     set.count = std::min(set.count + 1, kMaxObstacles);
   }
+  for (int k = 0; k < set.count; ++k) {
+    Obstacle& o = set.items[k];
+    int j = 0;
+    while (j < held_before && before[j].id != o.id) ++j;
+    if (j < held_before) {
+      o.first_normal = before[j].first_normal;
+      o.t_first_held_s = before[j].t_first_held_s;
+    } else {  // newly held: the rotating hyperplane starts facing the chaser
+      const Eigen::Vector3d d = chaser - obstacle_position(o, t_s, n_rad_s, model);
+      o.first_normal = d.norm() > 1e-9 ? Eigen::Vector3d(d.normalized()) : Eigen::Vector3d::UnitX();
+      o.t_first_held_s = t_s;
+    }
+  }
+}
+
+ObstacleRow rotating_hyperplane(const Obstacle& o, const Eigen::Vector3d& centre, const Eigen::Matrix3d& S_inverse,
+                                const Eigen::Vector3d& goal, double t_s, double rate_rad_s) {
+  const Eigen::Vector3d n0 = o.first_normal;
+  Eigen::Vector3d nf = goal - centre;
+  nf = nf.norm() > 1e-9 ? Eigen::Vector3d(nf.normalized()) : n0;
+  Eigen::Vector3d axis = n0.cross(nf);
+  const double total = std::atan2(axis.norm(), n0.dot(nf));
+  if (axis.norm() < 1e-12) axis = n0.unitOrthogonal();
+  const double angle = std::clamp(rate_rad_s * (t_s - o.t_first_held_s), 0.0, total);
+  ObstacleRow row;
+  row.normal = Eigen::AngleAxisd(angle, axis.normalized()) * n0;
+  row.bound_m = row.normal.dot(centre) + std::sqrt(row.normal.dot(S_inverse * row.normal));
+  return row;
 }
 
 ObstacleRow linearize_obstacle(const Eigen::Vector3d& centre, const Eigen::Matrix3d& S, const Eigen::Vector3d& p,

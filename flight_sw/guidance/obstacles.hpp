@@ -31,6 +31,16 @@ enum class ObstaclePrediction : uint8_t {
   NaturalMotion = 1      // unforced Clohessy-Wiltshire motion of the obstacle's centre
 };
 
+enum class ObstacleMethod : uint8_t {
+  DirectLinearization = 0,  // the tangent plane about the previous plan's prediction (above)
+  // Park, Di Cairano and Kolmanovsky's rotating hyperplane, as used by Weiss, Petersen, Baldwin et al.
+  // ("Spacecraft relative motion guidance ... with a suddenly appearing obstacle", eq. 12): when the
+  // obstacle is first held, the plane tangent to it facing the chaser; its normal then turns at a
+  // constant rate about normal x (direction to the target) until it points from the obstacle to
+  // the target. Rows active only while the chaser is within hyperplane_active_range_m of the zone.
+  RotatingHyperplane = 1
+};
+
 struct Obstacle {
   uint32_t id = 0;
   double t_state_s = 0.0;  // time of position/velocity
@@ -39,6 +49,10 @@ struct Obstacle {
   Eigen::Vector3d velocity_lvlh_mps = Eigen::Vector3d::Zero();
   Eigen::Vector3d semi_axes_m = Eigen::Vector3d::Ones();
   Eigen::Quaterniond q_lvlh_body = Eigen::Quaterniond::Identity();
+  // Set by select_obstacles when the guidance first holds it (kept while it stays held): the
+  // rotating hyperplane's start, the unit direction from the centre to the chaser then, and when.
+  Eigen::Vector3d first_normal = Eigen::Vector3d::UnitX();
+  double t_first_held_s = 0.0;
 };
 
 // The obstacles the guidance plans around (the nearest kMaxObstacles of what it was told).
@@ -74,6 +88,10 @@ struct ObstacleRow {
   Eigen::Vector3d normal = Eigen::Vector3d::UnitX();
   double bound_m = 0.0;
 };
+// The rotating hyperplane's row at time t_s (normal n, n'r >= n'c + sqrt(n' S^-1 n): tangent to the zone).
+ObstacleRow rotating_hyperplane(const Obstacle& o, const Eigen::Vector3d& centre, const Eigen::Matrix3d& S_inverse,
+                                const Eigen::Vector3d& goal, double t_s, double rate_rad_s);
+
 ObstacleRow linearize_obstacle(const Eigen::Vector3d& centre, const Eigen::Matrix3d& S, const Eigen::Vector3d& p,
                                const Eigen::Vector3d& fallback_direction);
 

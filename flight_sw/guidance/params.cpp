@@ -115,6 +115,8 @@ std::string GuidanceParams::validate() const {
     err << "obstacle_capacity must be 0 or " << kMaxObstacles << "; ";
   if (!nonnegative(obstacle_margin_m) || !positive(obstacle_penalty) || !nonnegative(obstacle_penalty_quadratic))
     err << "obstacle_margin_m and obstacle_penalty_quadratic must be >= 0, obstacle_penalty > 0; ";
+  if (!positive(hyperplane_rate_rad_s) || !positive(hyperplane_active_range_m))
+    err << "hyperplane_rate_rad_s and hyperplane_active_range_m must be > 0; ";
   if (!nonnegative(max_iter_accept_residual)) err << "max_iter_accept_residual must be >= 0; ";
   if (!(margins.input_fraction >= 0.0 && margins.input_fraction < 1.0)) err << "margins.input_fraction must be in [0, 1); ";
   if (!(margins.plan_reserve_fraction >= 0.0 && margins.plan_reserve_fraction < 1.0))

@@ -146,6 +146,9 @@ struct GuidanceParams {
   double obstacle_penalty = 1e4;
   double obstacle_penalty_quadratic = 10.0;
   ObstaclePrediction obstacle_prediction = ObstaclePrediction::ConstantVelocity;
+  ObstacleMethod obstacle_method = ObstacleMethod::DirectLinearization;
+  double hyperplane_rate_rad_s = 0.002;       // rotating hyperplane: turn rate of its normal (~2x the orbit rate)
+  double hyperplane_active_range_m = 500.0;   // rotating hyperplane: rows only within this of the zone
 
   Margins margins;
   // The thrusters burn for a finite time: the prediction models each period's delta-v as an impulse at

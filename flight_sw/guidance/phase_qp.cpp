@@ -242,15 +242,31 @@ void PhaseQp::fill_obstacles(const Vector6d& x0) {
     const Obstacle& o = obstacles_->items[k];
     const Eigen::Matrix3d S = obstacle_shape(o, margin);
     auto centre_at = [&](int i) { return obstacle_position(o, obstacle_t_s_ + i * Ts_, n_, params_.obstacle_prediction); };
+    const bool hyperplane = params_.obstacle_method == ObstacleMethod::RotatingHyperplane;
+    if (hyperplane && obstacle_surface_distance_m(o, x0.head<3>(), obstacle_t_s_, n_, params_.obstacle_prediction) >
+                          params_.hyperplane_active_range_m + margin) {
+      for (int i = 1; i <= N_; ++i) {  // out of range: inactive
+        const int row = stage(i).obstacle_row + 2 * k;
+        qp_.C[i].block<2, 3>(row, 0).setZero();
+        qp_.d[i].segment<2>(row).setOnes();
+      }
+      continue;
+    }
+    const Eigen::Matrix3d S_inverse = S.inverse();
+    auto plane = [&](int i, const Eigen::Vector3d& c) {
+      return hyperplane ? rotating_hyperplane(o, c, S_inverse, Eigen::Vector3d::Zero(), obstacle_t_s_ + i * Ts_,
+                                              params_.hyperplane_rate_rad_s)
+                        : linearize_obstacle(c, S, predicted_[i], x0.head<3>() - c);
+    };
     Eigen::Vector3d centre = centre_at(1);
-    ObstacleRow own = linearize_obstacle(centre, S, predicted_[1], x0.head<3>() - centre);
+    ObstacleRow own = plane(1, centre);
     for (int i = 1; i <= N_; ++i) {
       const int row = stage(i).obstacle_row + 2 * k;
       ObstacleRow next = own;
       Eigen::Vector3d centre_next = centre;
       if (i < N_) {
         centre_next = centre_at(i + 1);
-        next = linearize_obstacle(centre_next, S, predicted_[i + 1], x0.head<3>() - centre_next);
+        next = plane(i + 1, centre_next);
       }
       qp_.C[i].block<1, 3>(row, 0) = -own.normal.transpose();  // n' rho_i >= b
       qp_.d[i](row) = -own.bound_m;

@@ -71,6 +71,23 @@ void bind_app(py::module_& m) {
             return encoded(app.apply_config(c));
           },
           py::arg("config"), "one encoded config (vehicle and settings) -> the encoded echo")
+      .def(
+          "handle_obstacles",
+          [](FlightApp& app, const py::bytes& obstacles) {
+            const std::string data = obstacles;
+            msg::Obstacles m;
+            const msg::Error e = msg::decode(reinterpret_cast<const uint8_t*>(data.data()), data.size(), m);
+            if (e != msg::Error::None) throw py::value_error(std::string("obstacles: ") + msg::to_string(e));
+            app.accept_obstacles(m);
+          },
+          py::arg("obstacles"), "one encoded obstacles message, kept for the next nav")
+      .def(
+          "take_obstacle_status",
+          [](FlightApp& app) -> py::object {
+            if (!app.take_obstacle_status_due()) return py::none();
+            return encoded(app.obstacle_status());
+          },
+          "the encoded obstacle_status the last step owes before its cmd, else None")
       .def("hello", [](const FlightApp& app, uint32_t session) { return encoded(app.hello(session)); },
            py::arg("session") = 1, "the encoded hello message")
       .def("telemetry", [](const FlightApp& app) { return encoded(app.telemetry()); },

@@ -134,6 +134,9 @@ void bind_guidance(py::module_& m) {
   py::enum_<ObstaclePrediction>(m, "ObstaclePrediction")
       .value("ConstantVelocity", ObstaclePrediction::ConstantVelocity)
       .value("NaturalMotion", ObstaclePrediction::NaturalMotion);
+  py::enum_<ObstacleMethod>(m, "ObstacleMethod")
+      .value("DirectLinearization", ObstacleMethod::DirectLinearization)
+      .value("RotatingHyperplane", ObstacleMethod::RotatingHyperplane);
   m.attr("MAX_OBSTACLES") = kMaxObstacles;
 
   py::class_<Obstacle>(m, "Obstacle", "An ellipsoidal keep-out zone as the guidance is told it (LVLH, SI).")
@@ -256,6 +259,9 @@ void bind_guidance(py::module_& m) {
       .def_readwrite("obstacle_penalty", &GuidanceParams::obstacle_penalty)
       .def_readwrite("obstacle_penalty_quadratic", &GuidanceParams::obstacle_penalty_quadratic)
       .def_readwrite("obstacle_prediction", &GuidanceParams::obstacle_prediction)
+      .def_readwrite("obstacle_method", &GuidanceParams::obstacle_method)
+      .def_readwrite("hyperplane_rate_rad_s", &GuidanceParams::hyperplane_rate_rad_s)
+      .def_readwrite("hyperplane_active_range_m", &GuidanceParams::hyperplane_active_range_m)
       .def_readwrite("margins", &GuidanceParams::margins)
       .def_readwrite("finite_burns", &GuidanceParams::finite_burns)
       .def("mean_motion_rad_s", &GuidanceParams::mean_motion_rad_s)

@@ -97,3 +97,28 @@ TEST_CASE("every phase QP has two soft rows per obstacle slot on stages 1..N, an
     }
   }
 }
+
+TEST_CASE("the rotating hyperplane starts facing the chaser, turns at its rate and stops facing the goal") {
+  std::array<Obstacle, 1> list{ellipsoid(7, Eigen::Vector3d(0.0, -500.0, 0.0), Eigen::Vector3d::Constant(40.0))};
+  ObstacleSet set;
+  const Eigen::Vector3d chaser(-300.0, -500.0, 0.0);  // from the centre: -x; the goal (origin): +y
+  select_obstacles(list.data(), 1, chaser, 100.0, 0.0011, ObstaclePrediction::ConstantVelocity, set);
+  REQUIRE(set.count == 1);
+  const Obstacle& o = set.items[0];
+  CHECK((o.first_normal - Eigen::Vector3d(-1.0, 0.0, 0.0)).norm() < 1e-12);
+  CHECK(o.t_first_held_s == 100.0);
+  const Eigen::Matrix3d Sinv = obstacle_shape(o, 0.0).inverse();
+  const double rate = 0.01;
+  for (double dt : {0.0, 50.0, 100.0, 1000.0}) {
+    const ObstacleRow r = rotating_hyperplane(o, o.position_lvlh_m, Sinv, Eigen::Vector3d::Zero(), 100.0 + dt, rate);
+    const double angle = std::min(rate * dt, 3.14159265358979 / 2);  // a quarter turn from -x to +y
+    CHECK(r.normal.x() == doctest::Approx(-std::cos(angle)).epsilon(1e-12));
+    CHECK(r.normal.y() == doctest::Approx(std::sin(angle)).epsilon(1e-12));
+    CHECK(r.bound_m == doctest::Approx(r.normal.dot(o.position_lvlh_m) + 40.0).epsilon(1e-12));  // tangent
+  }
+  // Held again a step later: its start is kept, not re-taken from the chaser's new position.
+  select_obstacles(list.data(), 1, Eigen::Vector3d(-250.0, -400.0, 0.0), 130.0, 0.0011,
+                   ObstaclePrediction::ConstantVelocity, set);
+  CHECK(set.items[0].t_first_held_s == 100.0);
+  CHECK((set.items[0].first_normal - Eigen::Vector3d(-1.0, 0.0, 0.0)).norm() < 1e-12);
+}
