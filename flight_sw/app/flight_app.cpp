@@ -620,7 +620,7 @@ void FlightApp::note_obstacles_held(const rvd_nav_input& li) {
   obstacles_held_.held = static_cast<uint16_t>(std::min<uint32_t>(lo.obstacles_held, RVD_MAX_OBSTACLES));
   obstacles_held_.capacity = static_cast<uint16_t>(std::min<uint32_t>(lo.obstacles_capacity, UINT16_MAX));
   obstacles_held_.dropped_total = lo.obstacles_dropped_total;
-  obstacles_held_.rejected_total = lo.obstacles_rejected_total + obstacles_rejected_;
+  obstacles_held_.rejected_total = lo.obstacles_rejected_total;  // the law's; obstacle_status() adds the harness's
   for (int k = 0; k < obstacles_held_.held; ++k) obstacles_held_.held_id[k] = lo.obstacle_held_id[k];
   if (obstacles_held_.dropped_total != dropped_before)
     note("obstacles step %u: %u sensed, holding the nearest %u (capacity %u)", pending_obstacles_.step,
@@ -629,7 +629,11 @@ void FlightApp::note_obstacles_held(const rvd_nav_input& li) {
   obstacle_status_due_ = true;
 }
 
-msg::ObstacleStatus FlightApp::obstacle_status() const { return obstacles_held_; }
+msg::ObstacleStatus FlightApp::obstacle_status() const {
+  msg::ObstacleStatus s = obstacles_held_;
+  s.rejected_total += obstacles_rejected_;  // whole messages refused here count at once
+  return s;
+}
 
 void FlightApp::receive_bye(const uint8_t* data, size_t size) {
   msg::Bye b;
