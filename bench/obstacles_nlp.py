@@ -1,4 +1,4 @@
-"""NLP baseline of the obstacle rows: the 3-D scenario of Dong, Ghiglino et al. (bench/obstacles_seed000.py)
+"""NLP baseline of the obstacle rows: the 3-D scenario of Dong, Ghiglino et al. (bench/obstacles_dong3d.py)
 solved once over the whole manoeuvre with the exact, nonconvex keep-out constraints by IPOPT (through
 CasADi, whose wheel bundles it), beside our receding-horizon MPC with linearized rows. It says how much
 delta-v the linearization (and the receding horizon) costs; not flight code.
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from bench import obstacles_seed000 as seed
+from bench import obstacles_dong3d as seed
 from host_sim.cw import cw_stm
 from host_sim.obstacles import ObstacleField
 

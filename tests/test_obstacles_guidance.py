@@ -74,9 +74,9 @@ def test_case1_docks_around_a_crossing_obstacle_with_clearance_of_at_least_one(p
 
 
 def test_the_papers_3d_scenario_reaches_the_holding_distance_clear_of_both_moving_spheres():
-    """Dong, Ghiglino et al.'s Table 1 scenario (bench/obstacles_seed000.py): without obstacle rows the
+    """Dong, Ghiglino et al.'s Table 1 scenario (bench/obstacles_dong3d.py): without obstacle rows the
     path runs through both spheres; with them it stays out of both and still reaches 2.3 m."""
-    from bench import obstacles_seed000 as seed
+    from bench import obstacles_dong3d as seed
 
     blind = seed.fly(seed.params(False, False), seed.OBSTACLES)
     assert blind["reached"] and min(blind["clearance"].values()) < 1.0

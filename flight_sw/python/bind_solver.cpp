@@ -282,7 +282,7 @@ s >= 0 at the cost zs[i][k] s + Zs[i][k] s^2 / 2 (penalties >= 0); result.s hold
 
 A, B, b are lists over i = 0..N-1; Q, q, R, r, C, D, d over i = 0..N (R_N, r_N, D_N may have zero
 columns). mode 'converged' is the primal-dual interior point to relative accuracy tol;
-'fixed_barrier' is the seed's Fast MPC (log barrier weight `barrier`, infeasible-start Newton).
+'fixed_barrier' is Wang and Boyd's Fast MPC (log barrier weight `barrier`, infeasible-start Newton).
 max_iter defaults to 100 (converged) or 15 (fixed_barrier). Shape errors raise ValueError; NaN/Inf
 gives status 'invalid_input'.)doc");
 

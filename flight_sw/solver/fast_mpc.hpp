@@ -7,7 +7,7 @@
 //  - Mode::Converged (ipm.cpp): primal-dual interior point, Mehrotra predictor-corrector with a
 //    Gondzio corrector when the step is short and iterative refinement in the late iterations, to
 //    Settings::tol on the relative primal and dual residuals and duality gap.
-//  - Mode::FixedBarrier (fixed_barrier.cpp): the seed's infeasible-start Newton method on the
+//  - Mode::FixedBarrier (fixed_barrier.cpp): Wang and Boyd's infeasible-start Newton method on the
 //    log-barrier problem with a fixed weight kappa; its iterates satisfy the rows strictly and its
 //    answer is at most m*kappa worse than the optimum (m = rows).
 // Infeasibility (infeasibility.cpp) is decided from the interior-point iterates: a scaled dual

@@ -1,4 +1,4 @@
-// The seed's Fast MPC (Wang & Boyd 2010, sec. III): infeasible-start Newton on the log-barrier
+// Wang and Boyd's Fast MPC (2010, sec. III): infeasible-start Newton on the log-barrier
 // problem
 //   f(z) + sum_soft (zs s + Zs s^2 / 2) - kappa sum log(d + s - Gz) - kappa sum_soft log(s)
 // subject to the dynamics, with a fixed weight kappa, from a point that satisfies the rows

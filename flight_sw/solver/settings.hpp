@@ -6,7 +6,7 @@
 namespace rvd::solver {
 
 enum class Mode {
-  FixedBarrier,  // the seed's Wang-Boyd Fast MPC: one barrier weight, infeasible-start Newton, small cap
+  FixedBarrier,  // Wang and Boyd's Fast MPC: one barrier weight, infeasible-start Newton, small cap
   Converged      // primal-dual interior point to the requested relative accuracy
 };
 
@@ -50,7 +50,7 @@ struct Settings {
   // predictor's (one more back-solve; 0 = never).
   double second_order_keep = 0.5;
 
-  // --- Fixed barrier (the seed's Fast MPC)
+  // --- Fixed barrier (Wang and Boyd's Fast MPC)
   // Backtracking line search of the infeasible-start Newton method (Boyd & Vandenberghe 10.3.2):
   // sufficient decrease ls_alpha, halving factor ls_beta, at most ls_max_halvings; no row slack
   // loses more than newton_to_boundary of its value in one step.
@@ -70,13 +70,13 @@ struct Settings {
   static Settings converged(int max_iter = 40);
   // Reference-grade answers for tests and benchmarks: tol 1e-10, no warm start, cap 100.
   static Settings reference();
-  // The seed's Fast MPC: fixed barrier weight kappa, small iteration cap, warm start.
+  // Wang and Boyd's Fast MPC: fixed barrier weight kappa, small iteration cap, warm start.
   static Settings fixed_barrier(double kappa = 1e-4, int max_iter = 15);
   // nullptr when usable, else what is wrong.
   const char* invalid() const;
 };
 
-// The seed's Fast MPC mode (kept for its callers): Settings::fixed_barrier.
+// Wang and Boyd's Fast MPC mode (kept for its callers): Settings::fixed_barrier.
 inline Settings fixed_barrier_settings(double kappa = 1e-4, int max_iter = 15) {
   return Settings::fixed_barrier(kappa, max_iter);
 }

@@ -233,7 +233,7 @@ TEST_CASE("FixedBarrier: strictly feasible, and within m*kappa of the optimum") 
 }
 
 TEST_CASE("FixedBarrier with a small cap keeps every warm-started plan strictly feasible") {
-  // The seed's use: a generous first solve, then a few Newton iterations per control period.
+  // Wang and Boyd's use: a generous first solve, then a few Newton iterations per control period.
   const int N = 30;
   const OcpQp qp = docking_like(N, 0.0);
   FastMpcSolver fb(qp.dims, fixed_barrier_settings(1e-4, 60));

@@ -2,7 +2,7 @@
 control with a suddenly appearing obstacle": MPC with rotating hyperplanes, Table 1), flown by our
 rendezvous-phase MPC in-process against the impulsive CW plant; our figures beside the published ones.
 
-    python -m bench.obstacles_seed002 [--horizons 50,360]
+    python -m bench.obstacles_weiss_geo [--horizons 50,360]
 
 Set-up as published: geostationary orbit, the chaser 5 km ahead in-track at rest, to the origin
 within 50 m; Delta T 120 s; Q = 1e-3 I and R = 2e3 I in km and km/s (the same ratio in metres:

@@ -2,10 +2,10 @@
 avoidance" (Table 1), flown by our rendezvous-phase MPC with the direct-linearization obstacle rows,
 in-process against the impulsive CW plant; our figures printed beside the published ones.
 
-    python -m bench.obstacles_seed000 [--fixed-barrier]
+    python -m bench.obstacles_dong3d [--fixed-barrier]
 
 Set-up as published: 6500 kg chaser at 705 km, from (50, -1000, 10) m at rest to the holding
-distance 2.3 m from the target (bench/scenarios/seed000_3d.toml), N 30, Ts 15 s, Q diag(1, 1, 1, 100, 100, 100), R diag(100, 100, 100)
+distance 2.3 m from the target (bench/scenarios/dong_3d_obstacles.toml), N 30, Ts 15 s, Q diag(1, 1, 1, 100, 100, 100), R diag(100, 100, 100)
 on the thrust in N, 20 N per axis, two spheres of radius 20 and 50 m moving at constant LVLH
 velocity from the table's initial states. What differs, and why:
 - our input is the impulsive delta-v of a period (the paper's a zero-order-hold thrust): u_max =
@@ -31,7 +31,7 @@ from host_sim.cw import cw_stm
 from host_sim import scenario
 from host_sim.obstacles import ObstacleField
 
-SCENARIO = scenario.load(Path(__file__).parent / "scenarios" / "seed000_3d.toml")
+SCENARIO = scenario.load(Path(__file__).parent / "scenarios" / "dong_3d_obstacles.toml")
 MASS_KG, THRUST_N = SCENARIO.chaser.mass_kg, SCENARIO.thrusters.force_n
 TS_S, N, HOLD_M = 15.0, 30, 2.3
 CHASER0 = np.array(SCENARIO.chaser.position_lvlh_m + SCENARIO.chaser.velocity_lvlh_mps)
