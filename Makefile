@@ -41,6 +41,7 @@ native: | deps
 
 test: export OPENBLAS_NUM_THREADS = 1
 test: export RVD_QEMU_FETCH = 1
+test: export RVD_REQUIRE_ALL_TESTS = 1
 test: build
 	@# The QEMU tests need the counting plugin (qemu-plugin.h from Debian's qemu source package) and
 	@# the system-mode images (Debian ARM kernels, busybox): fetched once into build/, ~15 s.
