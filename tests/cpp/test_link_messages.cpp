@@ -10,56 +10,19 @@
 #include <vector>
 
 #include "flight_sw/link/messages.hpp"
+#include "tests/cpp/golden_vectors.hpp"
 
 using namespace rvd::msg;
 
 namespace {
-// The `hex = "..."` line of section [name] in schema/golden.toml (the format is ours and simple).
-std::vector<uint8_t> golden(const std::string& name) {
-  std::ifstream in(std::string(RVD_SOURCE_DIR) + "/schema/golden.toml");
-  REQUIRE(in.good());
-  std::string line, section;
-  while (std::getline(in, line)) {
-    if (line.rfind("[", 0) == 0) section = line.substr(1, line.find(']') - 1);
-    if (section == name && line.rfind("hex = \"", 0) == 0) {
-      std::string hex = line.substr(7, line.size() - 8);
-      std::vector<uint8_t> bytes;
-      for (size_t i = 0; i + 1 < hex.size(); i += 2) bytes.push_back(static_cast<uint8_t>(std::stoul(hex.substr(i, 2), nullptr, 16)));
-      return bytes;
-    }
-  }
-  FAIL("no golden vector for " << name);
-  return {};
-}
-
-// The golden [auth] section: key 00 01 .. 1f, run id "golden-run-7".
-std::array<uint8_t, kKeySize> golden_key() {
-  std::array<uint8_t, kKeySize> k{};
-  for (size_t i = 0; i < k.size(); ++i) k[i] = static_cast<uint8_t>(i);
-  return k;
-}
-constexpr const char* kGoldenRun = "golden-run-7";
+using golden_vectors::auth_for;
+std::vector<uint8_t> golden(const std::string& name) { return golden_vectors::vector_of(name); }
+const auto golden_key = golden_vectors::key;
+constexpr const char* kGoldenRun = golden_vectors::kRun;
+template <class M>
+std::vector<uint8_t> encoded(const M& m, Role sender = Role::Flight, uint32_t seq = 1) { return golden_vectors::sealed(m, sender, seq); }
 constexpr uint32_t kGoldenNonce = 2018313737u;
 
-LinkAuth auth_for(Role role) {
-  const auto k = golden_key();
-  return LinkAuth(k.data(), k.size(), kGoldenRun, role);
-}
-
-// M sealed by `sender` as its message number `seq` of the run.
-template <class M>
-std::vector<uint8_t> encoded(const M& m, Role sender = Role::Flight, uint32_t seq = 1) {
-  LinkAuth a = auth_for(sender);
-  std::vector<uint8_t> out(M::kSize);
-  Error e = Error::BufferTooSmall;
-  REQUIRE(encode(m, out.data(), out.size(), &e) == M::kSize);
-  REQUIRE(e == Error::None);
-  std::vector<uint8_t> scratch(M::kSize);
-  for (uint32_t i = 1; i < seq; ++i) REQUIRE(a.seal(scratch.data(), scratch.size()) == Error::None);
-  REQUIRE(a.seal(out.data(), out.size()) == Error::None);
-  CHECK(a.last_sent() == seq);
-  return out;
-}
 }  // namespace
 
 TEST_CASE("hello golden vector") {

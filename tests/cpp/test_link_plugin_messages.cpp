@@ -8,42 +8,14 @@
 #include <vector>
 
 #include "flight_sw/link/messages.hpp"
+#include "tests/cpp/golden_vectors.hpp"
 
 using namespace rvd::msg;
 
 namespace {
-std::vector<uint8_t> golden(const std::string& name) {
-  std::ifstream in(std::string(RVD_SOURCE_DIR) + "/schema/golden.toml");
-  REQUIRE(in.good());
-  std::string line, section;
-  while (std::getline(in, line)) {
-    if (line.rfind("[", 0) == 0) section = line.substr(1, line.find(']') - 1);
-    if (section == name && line.rfind("hex = \"", 0) == 0) {
-      const std::string hex = line.substr(7, line.size() - 8);
-      std::vector<uint8_t> bytes;
-      for (size_t i = 0; i + 1 < hex.size(); i += 2) bytes.push_back(static_cast<uint8_t>(std::stoul(hex.substr(i, 2), nullptr, 16)));
-      return bytes;
-    }
-  }
-  FAIL("no golden vector for " << name);
-  return {};
-}
-
-LinkAuth auth_for(Role role) {
-  std::array<uint8_t, kKeySize> k{};
-  for (size_t i = 0; i < k.size(); ++i) k[i] = static_cast<uint8_t>(i);
-  return LinkAuth(k.data(), k.size(), "golden-run-7", role);
-}
-
-template <class M>
-std::vector<uint8_t> sealed(const M& m, Role sender, uint32_t seq) {
-  LinkAuth a = auth_for(sender);
-  std::vector<uint8_t> out(M::kSize), scratch(M::kSize);
-  REQUIRE(encode(m, out.data(), out.size()) == M::kSize);
-  for (uint32_t i = 1; i < seq; ++i) REQUIRE(a.seal(scratch.data(), scratch.size()) == Error::None);
-  REQUIRE(a.seal(out.data(), out.size()) == Error::None);
-  return out;
-}
+using golden_vectors::auth_for;
+using golden_vectors::sealed;
+std::vector<uint8_t> golden(const std::string& name) { return golden_vectors::vector_of(name); }
 }  // namespace
 
 TEST_CASE("config golden vector (the flight software's echo)") {
