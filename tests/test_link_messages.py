@@ -1,6 +1,7 @@
 """The link message schema: golden byte vectors (sealed under the golden key), generated code up to
 date, message authentication, bad input rejected."""
 import ast
+import re
 import math
 import subprocess
 import sys
@@ -13,7 +14,8 @@ from host_sim import messages as msg
 
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = tomllib.loads((ROOT / "schema" / "golden.toml").read_text())
-CLASSES = {"hello": msg.Hello, "nav": msg.Nav, "cmd": msg.Cmd, "telemetry": msg.Telemetry, "bye": msg.Bye}
+# Every message of the schema, by its schema name (ObstacleStatus -> obstacle_status).
+CLASSES = {re.sub(r"(?<!^)(?=[A-Z])", "_", cls.__name__).lower(): cls for cls in msg.MESSAGE_TYPES.values()}
 KEY = bytes.fromhex(GOLDEN["auth"]["key_hex"])
 RUN = GOLDEN["auth"]["run_id"]
 OTHER = {"host": "flight", "flight": "host"}
@@ -61,6 +63,10 @@ def test_golden_seal_and_open(name):
     assert raw[16:-msg.TAG_SIZE] == expected[16:-msg.TAG_SIZE]
     assert msg.decode(expected) == m
     assert len(expected) == msg.HEADER_SIZE + cls.BODY.size + msg.TAG_SIZE <= msg.MAX_MESSAGE_SIZE
+
+
+def test_every_schema_message_has_a_golden_vector():
+    assert set(GOLDEN) - {"auth"} == set(CLASSES)
 
 
 def test_every_schema_field_is_in_a_golden_vector():
