@@ -137,6 +137,30 @@ def stop_process(proc: subprocess.Popen, grace_s: float = 5.0) -> int:
     return proc.wait()
 
 
+
+HELLO_FIELDS = ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction", "period_s", "max_pulse_s",
+                "solver_mode", "solver_max_iter", "session")
+
+
+def end_of_run_meta(s, cfg, flight_exit_code) -> dict:
+    """What a run's record says when it ends: the server's summary `s` (RunSummary), the flight software's
+    hello, telemetry and configuration; the same for a PIL run and the in-process path."""
+    hello = s.hello
+    return dict(
+        end=s.end, docked=s.docked, steps=s.steps, t_end_s=s.t_s, dv_total_mps=s.dv_total_mps, dv_l1_mps=s.dv_l1_mps,
+        dv_per_phase_mps=s.dv_per_phase_mps, time_per_phase_s=s.time_per_phase_s,
+        final_range_to_port_m=s.final_range_to_port_m, nav_resends=s.nav_resends,
+        late_commands=s.late_commands, rejected_messages=s.rejected_messages,
+        stale_commands=s.stale_commands, duplicate_commands=s.duplicate_commands,
+        future_commands=s.future_commands, invalid_commands=s.invalid_commands,
+        host_discarded=s.discarded, flight_discarded=s.flight_discarded,
+        host_speed_dependent=s.host_speed_dependent or cfg.host_speed_dependent(hello),
+        flight_exit_code=flight_exit_code,
+        flight_hello=None if hello is None else {k: getattr(hello, k) for k in HELLO_FIELDS},
+        flight_telemetry=None if s.telemetry is None else vars(s.telemetry),
+        safety=s.safety, flight_config=s.flight_config, law_faults=s.law_faults,
+    )
+
 def run_pil(
     scenario: Scenario | str,
     *,
@@ -222,26 +246,6 @@ def run_pil(
         if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
-        s = server.summary
-        hello = s.hello
-        recorder.close(
-            status,
-            end=s.end, docked=s.docked, steps=s.steps, t_end_s=s.t_s, dv_total_mps=s.dv_total_mps, dv_l1_mps=s.dv_l1_mps,
-            dv_per_phase_mps=s.dv_per_phase_mps, time_per_phase_s=s.time_per_phase_s,
-            final_range_to_port_m=s.final_range_to_port_m, nav_resends=s.nav_resends,
-            late_commands=s.late_commands, rejected_messages=s.rejected_messages,
-            stale_commands=s.stale_commands, duplicate_commands=s.duplicate_commands,
-            future_commands=s.future_commands, invalid_commands=s.invalid_commands,
-            host_discarded=s.discarded, flight_discarded=s.flight_discarded,
-            host_speed_dependent=s.host_speed_dependent or cfg.host_speed_dependent(hello),
-            flight_exit_code=None if proc is None else proc.returncode,
-            flight_hello=None if hello is None else {k: getattr(hello, k) for k in
-                                                      ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction",
-                                                       "period_s", "max_pulse_s", "solver_mode", "solver_max_iter",
-                                                       "session")},
-            flight_telemetry=None if s.telemetry is None else vars(s.telemetry),
-            safety=s.safety,
-            flight_config=s.flight_config, law_faults=s.law_faults,
-        )
-        write_law_values(run_dir, s.law_values)
+        recorder.close(status, **end_of_run_meta(server.summary, cfg, None if proc is None else proc.returncode))
+        write_law_values(run_dir, server.summary.law_values)
     return summary, run_dir

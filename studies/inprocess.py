@@ -122,19 +122,5 @@ def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int 
         summary = server.run()
         status = "finished"
     finally:
-        s = server.summary
-        hello = s.hello
-        recorder.close(
-            status,
-            end=s.end, docked=s.docked, steps=s.steps, t_end_s=s.t_s, dv_total_mps=s.dv_total_mps, dv_l1_mps=s.dv_l1_mps,
-            dv_per_phase_mps=s.dv_per_phase_mps, time_per_phase_s=s.time_per_phase_s,
-            final_range_to_port_m=s.final_range_to_port_m, nav_resends=s.nav_resends,
-            late_commands=s.late_commands, rejected_messages=s.rejected_messages,
-            flight_exit_code=0 if status == "finished" else None,
-            flight_hello=None if hello is None else {k: getattr(hello, k) for k in
-                                                      ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction",
-                                                       "period_s", "solver_mode", "solver_max_iter", "session")},
-            flight_telemetry=None if s.telemetry is None else vars(s.telemetry),
-            **({"safety": s.safety} if hasattr(s, "safety") else {}),
-        )
+        recorder.close(status, **pil_module.end_of_run_meta(server.summary, cfg, 0 if status == "finished" else None))
     return summary, run_dir
