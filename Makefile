@@ -43,11 +43,12 @@ test: export OPENBLAS_NUM_THREADS = 1
 test: export RVD_QEMU_FETCH = 1
 test: export RVD_REQUIRE_ALL_TESTS = 1
 test: build
+	@# pytest runs one worker per core, each test file on one worker (module fixtures run once).
 	@# The QEMU tests need the counting plugin (qemu-plugin.h from Debian's qemu source package) and
 	@# the system-mode images (Debian ARM kernels, busybox): fetched once into build/, ~15 s.
 	$(PY) -m qemu prepare q7s rpi3
 	@cd $(NATIVE) && ctest --output-on-failure -j $(JOBS); c=$$?; \
-	cd $(CURDIR) && $(PY) -m pytest -q tests; p=$$?; \
+	cd $(CURDIR) && $(PY) -m pytest -q -n $(JOBS) --dist loadfile tests; p=$$?; \
 	if [ $$c -ne 0 ] || [ $$p -ne 0 ]; then echo "make test: FAILED (ctest exit $$c, pytest exit $$p)"; exit 1; fi
 
 asan: | deps

@@ -175,11 +175,15 @@ class ZenohLink:
             return sum(self.discarded.values())
 
     def put(self, kind: str, message) -> None:
-        self.session.put(msg.key(kind, self.run_id), self.auth.seal(message))
+        self.put_raw(kind, self.auth.seal(message))
 
     def put_raw(self, kind: str, data: bytes) -> None:
-        """Publish arbitrary bytes on a message key (fault-injection tests)."""
-        self.session.put(msg.key(kind, self.run_id), data)
+        """Publish arbitrary bytes on a message key (also for fault-injection tests). Blocking congestion
+        control: Zenoh's default for puts drops a message when the transmission queue has no room
+        within a millisecond, which a loaded machine can hit; every host message must arrive (a lost
+        nav costs a resend timeout), and a dead peer still ends the wait when Zenoh closes its link."""
+        self.session.put(msg.key(kind, self.run_id), data,
+                         congestion_control=self._zenoh.CongestionControl.BLOCK)
 
     def get(self, timeout_s: float):
         """Next decoded message from the flight side, or None after `timeout_s`."""

@@ -43,3 +43,10 @@ def pytest_runtest_makereport(item, call):
         reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
         report.outcome = "failed"
         report.longrepr = f"skipped under make test (everything should be installed): {reason}"
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Files with a slow test first (their order otherwise kept): `make test` runs one pytest worker
+    per core, each file on one worker, and a long file started last would finish alone."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow_files)

@@ -42,7 +42,7 @@ def test_host_restart_is_detected_then_reconnected_redeclared_and_resumed(mode):
         with Probe(endpoint, *args) as p:
             replies = queue.Queue()
             first.declare_subscriber("rvd/test/cmd", lambda s: replies.put(s.payload.to_bytes()))
-            nav = first.declare_publisher("rvd/test/nav")
+            nav = first.declare_publisher("rvd/test/nav", congestion_control=zenoh.CongestionControl.BLOCK)
             assert p.expect("OPEN")["status"] == "Ok"
             wait_matching(nav)
             lockstep(nav, replies, range(200))
@@ -56,7 +56,7 @@ def test_host_restart_is_detected_then_reconnected_redeclared_and_resumed(mode):
             try:
                 replies2 = queue.Queue()
                 second.declare_subscriber("rvd/test/cmd", lambda s: replies2.put(s.payload.to_bytes()))
-                nav2 = second.declare_publisher("rvd/test/nav")
+                nav2 = second.declare_publisher("rvd/test/nav", congestion_control=zenoh.CongestionControl.BLOCK)
                 wait_matching(nav2, timeout=30)          # the subscriber was declared again
                 assert p.expect("RECONNECTED", timeout=30)["remote_zid"] == str(second.zid())
                 # The echo goes out by the re-declared key id: it only arrives if that was redone too.

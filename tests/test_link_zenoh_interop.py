@@ -50,8 +50,8 @@ def test_handshake_adopts_the_smaller_batch_and_names_the_remote(host):
 def test_subscribe_and_put_in_both_directions(host):
     mode, endpoint, session = host
     sub, got = subscribe(session, "rvd/test/cmd")
-    nav = session.declare_publisher("rvd/test/nav", encoding=zenoh.Encoding.TEXT_PLAIN)
-    other = session.declare_publisher("rvd/test/other")
+    nav = session.declare_publisher("rvd/test/nav", congestion_control=zenoh.CongestionControl.BLOCK, encoding=zenoh.Encoding.TEXT_PLAIN)
+    other = session.declare_publisher("rvd/test/other", congestion_control=zenoh.CongestionControl.BLOCK)
     with Probe(endpoint, "--sub", "rvd/*/nav", "--print-payload", "--encoding", "5") as p:
         assert p.expect("OPEN")["status"] == "Ok"
         wait_matching(nav)
@@ -82,7 +82,7 @@ def test_lockstep_ten_thousand_exchanges_without_loss(host):
     """Python puts k on nav, the C++ side echoes it on cmd, Python waits for each k."""
     mode, endpoint, session = host
     sub, got = subscribe(session, "rvd/test/cmd")
-    nav = session.declare_publisher("rvd/test/nav")
+    nav = session.declare_publisher("rvd/test/nav", congestion_control=zenoh.CongestionControl.BLOCK)
     n = 10_000
     with Probe(endpoint, "--sub", "rvd/test/nav", "--echo", "rvd/test/cmd", "--quiet", "--check-seq") as p:
         assert p.expect("OPEN")["status"] == "Ok"
@@ -111,7 +111,7 @@ def test_lockstep_ten_thousand_exchanges_without_loss(host):
 def test_payload_larger_than_the_batch_arrives_fragmented_and_reassembled(host, batch, size):
     mode, endpoint, session = host
     data = bytes((i * 131 + 17) % 251 for i in range(size))
-    pub = session.declare_publisher("rvd/test/big")
+    pub = session.declare_publisher("rvd/test/big", congestion_control=zenoh.CongestionControl.BLOCK)
     with Probe(endpoint, "--batch", str(batch), "--sub", "rvd/test/big", "--print-payload") as p:
         o = p.expect("OPEN")
         assert int(o["batch"]) < size
@@ -152,12 +152,12 @@ def test_too_large_put_is_rejected_and_the_largest_that_fits_arrives(host):
 def test_timestamps_are_parsed(host):
     """An explicit timestamp arrives intact; a router stamps unstamped puts itself."""
     mode, endpoint, session = host
-    pub = session.declare_publisher("rvd/test/nav")
+    pub = session.declare_publisher("rvd/test/nav", congestion_control=zenoh.CongestionControl.BLOCK)
     with Probe(endpoint, "--sub", "rvd/test/nav") as p:
         assert p.expect("OPEN")["status"] == "Ok"
         wait_matching(pub)
         ts = session.new_timestamp()
-        session.put("rvd/test/nav", b"stamped", timestamp=ts)
+        session.put("rvd/test/nav", b"stamped", timestamp=ts, congestion_control=zenoh.CongestionControl.BLOCK)
         s = p.expect("SAMPLE")
         assert int(s["ts"]) == int(str(ts.get_time_as_ntp64()))
         assert s["tsid"] == str(ts.get_id())
@@ -176,7 +176,7 @@ def test_declared_key_expressions_sender_and_receiver_mapped(host):
     by declared id makes the router push by that id (receiver mapping, our own table)."""
     mode, endpoint, session = host
     sub, got = subscribe(session, "rvd/test/cmd")
-    nav = session.declare_publisher("rvd/test/nav")
+    nav = session.declare_publisher("rvd/test/nav", congestion_control=zenoh.CongestionControl.BLOCK)
     args = ["--declare", "rvd/test/cmd", "--declare", "rvd/test/nav", "--sub", "rvd/test/nav",
             "--echo", "rvd/test/cmd"]
     with Probe(endpoint, *args) as p:

@@ -163,6 +163,18 @@ def attacked_run(tmp_path, reference, react, name: str, config: ServerConfig | N
         wait_until(lambda: Path(f"/proc/{proc.pid}/cmdline").read_bytes(), "the flight process to start")
         holder["attacker"] = attacker = Attacker(proc.pid, react)
         attacker.wait_until_heard_by(server.link.session)  # before nav 0: it sees every step
+        # What reaches the flight software travels through the host's Zenoh runtime, which forwards
+        # the attacker's puts on the same link as its own navs and bye. A tap on the host's session
+        # counts the flight-bound forgeries once they are there: waiting for it before the host goes
+        # on orders every forgery before the next nav and before the bye that ends the run, so the
+        # flight's final telemetry has heard them all, however loaded the machine.
+        tapped = [0]
+
+        def tap(sample):
+            if str(sample.key_expr).rsplit("/", 1)[1] in ("nav", "bye"):
+                with attacker.lock:
+                    tapped[0] += 1
+        holder["tap"] = server.link.session.declare_subscriber("rvd/**", tap, allowed_origin=zenoh.Locality.REMOTE)
         assert attacker.run == server.cfg.run_id and str(server.cfg.endpoint) == attacker.endpoint
         assert server.cfg.link_key.hex() not in attacker.cmdline  # the key is not on the command line
 
@@ -174,6 +186,8 @@ def attacked_run(tmp_path, reference, react, name: str, config: ServerConfig | N
             wait_until(lambda: server.link.discarded_total() >= attacker.count("host"),
                        f"the host counting the forgeries up to step {k}: sent {attacker.sent}, "
                        f"counted {server.link.discarded}")
+            wait_until(lambda: tapped[0] >= attacker.count("flight"),
+                       f"the host's runtime holding the flight-bound forgeries up to step {k}")
         server.on_step = on_step
 
     try:
@@ -182,6 +196,8 @@ def attacked_run(tmp_path, reference, react, name: str, config: ServerConfig | N
                                    config=config or ServerConfig(delay_model="none"), run_dir=tmp_path / name,
                                    on_started=on_started)
     finally:
+        if "tap" in holder:
+            holder["tap"].undeclare()
         if "attacker" in holder:
             holder["attacker"].close()
     return summary, run_dir, holder["attacker"]

@@ -179,14 +179,21 @@ def test_real_time_pacing_records_late_commands_without_hanging(tmp_path, flight
 
 def test_real_time_pacing_at_a_feasible_speed_docks(tmp_path, flight_exe, in_process_case1):
     # 200x real time: a 5 s docking period lasts 25 ms of wall time, ample for a native solve on an
-    # idle machine; on a loaded one a command can still miss its slot. What must hold either way:
-    # the run docks, every miss is recorded as such, and with none the run is the lockstep one.
+    # idle machine; on a loaded one a command can miss its slot, and then the chaser coasts that
+    # period, so whether it still docks depends on the machine. What must hold either way: every
+    # miss is recorded as such and coasted, and with none the run is the lockstep one and docks.
     summary, run_dir = _ideal_case1(tmp_path, "realtime_ok", config=ServerConfig(lockstep=False, speedup=200.0))
-    assert summary.end == "docked", summary.end
     events = load_events(run_dir)
-    assert (events["kind"] == "late_cmd").sum() == summary.late_commands
+    late = set(events[events["kind"] == "late_cmd"]["step"])
+    assert len(late) == summary.late_commands
     if summary.late_commands == 0:
+        assert summary.end == "docked", summary.end
         assert summary.dv_total_mps == pytest.approx(in_process_case1.total["dv_mps"], abs=1e-9)
+    else:
+        assert summary.end in ("docked", "timeout", "collision"), summary.end
+        _, steps = load_run(run_dir)
+        pulses = steps[steps["step"].isin(late)][[f"pulse_cmd_{a}_s" for a in ("px", "mx", "py", "my", "pz", "mz")]]
+        assert (pulses.to_numpy() == 0.0).all()
 
 
 def test_deadline_monitor_counts_overruns_and_falls_back(tmp_path, flight_exe):

@@ -17,6 +17,8 @@ from scipy.optimize import linprog
 import flight_sw
 from support.qp_forms import OcpQpData, condense, from_dict, solve_proxsuite, to_stacked
 
+pytestmark = pytest.mark.slow  # minutes: scheduled first (tests/conftest.py)
+
 HORIZON_SETS = ((15, 5, 5), (30, 15, 12), (45, 30, 30))
 PER_GROUP = 35
 PHASE_NAMES = {1: "rendezvous", 2: "approach", 3: "docking"}

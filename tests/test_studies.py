@@ -22,6 +22,8 @@ from studies import OwnershipError, grid, report_study, run_study, spec
 from studies.aggregate import frames_equal
 from studies.metrics import WALL_TIME_METRICS, quadrant, safety
 
+pytestmark = pytest.mark.slow  # minutes: scheduled first (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parent.parent
 RVD_STUDY = [sys.executable, "-m", "studies.cli"]
 IDEAL = """
