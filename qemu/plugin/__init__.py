@@ -144,8 +144,8 @@ class BlockProfiler:
         args = f"{lib},out={self.out}"
         if self.cache is not None:
             l1d, l1i, l2 = self.cache
-            args += (",cache=on" if self.cache_scope == "solves" else ",cache=process") + "".join(f",{name}={g[0]}:{g[1]}:{g[2]}"
-                                          for name, g in (("l1d", l1d), ("l1i", l1i), ("l2", l2)))
+            args += ",cache=on" if self.cache_scope == "solves" else ",cache=process"
+            args += "".join(f",{name}={g[0]}:{g[1]}:{g[2]}" for name, g in (("l1d", l1d), ("l1i", l1i), ("l2", l2)))
         return ["-plugin", args]
 
 
