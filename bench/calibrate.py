@@ -78,7 +78,8 @@ def prepare(target_name: str, out: Path = OUT) -> dict:
     shutil.copy2(exe.path, out / exe.path.name)
     prof = out / "qemu.blocks"
     counter = plugin.InsnCounter(log=out / "qemu.insns")
-    profiler = plugin.BlockProfiler(out=prof, cache=model.cache_geometry)
+    # perf counts the whole process on the board: the cache model sees every access here too
+    profiler = plugin.BlockProfiler(out=prof, cache=model.cache_geometry, cache_scope="process")
     summary, run_dir = run_pil("case1_vbar", **IDEAL, config=ServerConfig(delay_model="none"),
                                flight_command=lambda args: user.command(t, exe.path, args, plugin=[counter, profiler]),
                                run_dir=out / "qemu-run")

@@ -182,7 +182,7 @@ class Campaign:
         tdir.mkdir(parents=True, exist_ok=True)
         base = {"target": t.name, "build": t.build_name, "cpu": t.cpu, "arch": t.arch, "clock_hz": t.clock_hz,
                 "cpi": asdict(t.cpi), "exe_size_bytes": exe.size_bytes, "exe_sha": _sha(exe.path),
-                "block_profile": {"cache": model.cache_geometry}}
+                "block_profile": {"cache": model.cache_geometry, "cache_scope": "solves"}}
         fp_base = json.dumps([base, spec.truth, spec.noise, spec.seed], sort_keys=True)
 
         def user_mode(run_dir: Path, plugin_log: Path, cache: bool = True):
@@ -211,8 +211,8 @@ class Campaign:
                 run_dir = tdir / f"case1-ideal-{rep}"
                 fp = hashlib.sha256(f"{fp_base}ideal{rep}".encode()).hexdigest()[:16]
                 # Every byte both sides send repeats in the two runs (run id, link key, both ZenohIDs
-                # and sequence numbers): the cache model simulates the link code between the solves
-                # too, so its figures repeat only when that code's memory traffic does.
+                # and sequence numbers), so the flight's allocations, and with them the addresses
+                # the cache model sees in the solves, are the same in both.
                 reps.append(self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True,
                                      flight_command=user_mode(run_dir, run_dir.with_suffix(".insns")),
                                      flight_args=["--session-seed", "1"],

@@ -108,7 +108,9 @@ def measure(N: int, opt: str) -> dict:
     exe = cross_build(generate(N), opt)
     model = cycles.CycleModel(t)
     prof_path = exe.with_suffix(".blocks")
-    proc = user.run(t, exe, [], plugin=plugin.BlockProfiler(out=prof_path, cache=model.cache_geometry), timeout_s=300)
+    # no solve markers in OSQP's example: the whole process is priced, so the cache model sees all of it
+    proc = user.run(t, exe, [], plugin=plugin.BlockProfiler(out=prof_path, cache=model.cache_geometry,
+                                                            cache_scope="process"), timeout_s=300)
     if proc.returncode != 0 or "no error" not in proc.stdout:
         raise RuntimeError(f"{exe.name} (N = {N}) failed: {proc.stdout} {proc.stderr}")
     prof = cycles.read_profile(prof_path)

@@ -4,7 +4,8 @@ Independent truths:
   - the instruction-counting plugin: the block profiler's total (executions x block size) of every
     solve region, and of the whole process, must equal its count exactly;
   - run-to-run: instruction counts, block counts, cache-model misses and the cycle estimates of the
-    same executable with the same inputs are identical;
+    same executable with the same inputs are identical; and they stay so when what differs from run
+    to run differs: the clock's readings inside a solve, the work between two solves;
   - published timings: the microbenchmarks (bench/microbench/) whose cost per iteration follows from
     Arm's documents (bench/microbench/expected.toml, each figure cited) are reproduced within 10 %;
   - llvm-15 itself: the LLVM figures the correction table replaces are the ones llvm-mca-15 uses;
@@ -46,12 +47,12 @@ def probe(request):
     return t, build.cross_build(t, "qemu_probe").path
 
 
-def _profiled_run(t, exe, args, tmp, libs, tag, cache=True):
+def _profiled_run(t, exe, args, tmp, libs, tag, cache=True, scope="solves"):
     counter_lib, profile_lib = libs
     model = cycles.CycleModel(t)
     ic = plugin.InsnCounter(log=tmp / f"{tag}.insns", library=counter_lib)
     bp = plugin.BlockProfiler(out=tmp / f"{tag}.blocks", cache=model.cache_geometry if cache else None,
-                              library=profile_lib)
+                              library=profile_lib, cache_scope=scope)
     proc = user.run(t, exe, args, plugin=[ic, bp], timeout_s=120)
     assert proc.returncode == 0, proc.stderr
     return model, plugin.read_log(tmp / f"{tag}.insns"), cycles.read_profile(tmp / f"{tag}.blocks"), \
@@ -90,6 +91,59 @@ def test_instruction_counts_and_cycle_estimates_repeat_exactly(libs, probe, tmp_
     assert 0.3 < llt.core_steady / llt.insns < 6  # a dense FP64 kernel: CPI of a few tenths to a few
 
 
+def _by_key(prof, region):
+    return {prof.blocks[b].key: n for b, n in region.counts.items()}
+
+
+def test_clock_readings_inside_a_solve_do_not_change_its_figures(libs, probe, tmp_path):
+    """The guidance step checks its deadline on steady_clock inside the counted region, and the
+    clock reads differently in every run. The flight's conversion of an elapsed time
+    (flight_sw/solver/elapsed.hpp) must execute the same blocks whatever the value: around 2^21 ns,
+    where libgcc's int64-to-double conversion (Armv7 has no instruction for it) changes path, around
+    2^32 ns and far beyond. std::chrono's own conversion is the control: on the A9 it executes as
+    many instructions at 3 ms as at 1 ms, through other blocks (what made the estimate vary)."""
+    t, exe = probe
+    elapsed = [1_000_000, 2_000_000, 2_200_000, 3_000_000, 4_294_000_000, 5_000_000_000, 2**52]
+    args = ["elapsed", "1000"] + [a for ns in elapsed for a in ("elapsed", str(ns))]  # the first warms the caches
+    args += ["chrono", "1000000", "chrono", "3000000"]
+    model, counted, prof, _ = _profiled_run(t, exe, args, tmp_path, libs, "clock")
+    assert [(r.step, r.insns) for r in prof.regions] == counted
+    costs = model.block_costs(exe, prof.blocks)
+    first, *rest = prof.regions[1:1 + len(elapsed)]
+    for r in rest:
+        assert _by_key(prof, r) == _by_key(prof, first)
+        assert r.cache == first.cache
+        assert model.region_cycles(r, costs) == model.region_cycles(first, costs)
+    at_1ms, at_3ms = prof.regions[-2:]
+    if t.arch == "armhf":
+        assert at_1ms.insns == at_3ms.insns and _by_key(prof, at_1ms) != _by_key(prof, at_3ms)
+
+
+def test_the_work_between_solves_does_not_change_a_solves_cache_figures(libs, probe, tmp_path):
+    """The code between two solves waits for the host: how often its loops run, and so what it leaves
+    in the caches, changes from run to run. The cache model sees the solves only, so a solve reading
+    16 KB the previous solve read hits in L1 whether 768 KB (more than L2) of other memory traffic
+    ran between the two or none. Over the whole process (cache_scope="process", a board
+    calibration's setting) the traffic evicts the table from both levels: the check can fail."""
+    t, exe = probe
+
+    def second_solve(kb, scope):
+        # the same argument lengths ("000" / "768"): the same initial stack, so the same stack addresses
+        _, counted, prof, _ = _profiled_run(t, exe, ["sum", "16", "touch", kb, "sum", "16"], tmp_path, libs,
+                                            f"{scope}{kb}", scope=scope)
+        assert [(r.step, r.insns) for r in prof.regions] == counted
+        return prof, prof.regions[1]
+
+    (pq, quiet), (pb, busy) = second_solve("000", "solves"), second_solve("768", "solves")
+    assert _by_key(pq, quiet) == _by_key(pb, busy)
+    assert quiet.cache == busy.cache
+    assert quiet.cache["load_acc"] >= 2048 and quiet.cache["load_l1_miss"] == 0
+    (_, quiet), (_, busy) = second_solve("000", "process"), second_solve("768", "process")
+    lines = 16 * 1024 // 64
+    assert quiet.cache["load_l1_miss"] < lines // 10  # the printf between the two evicts a few
+    assert busy.cache["load_l1_miss"] >= lines and busy.cache["load_l2_miss"] >= lines
+
+
 def test_borrowed_miss_rates_reproduce_the_cache_model_on_the_same_inputs(libs, probe, tmp_path):
     """A run without the cache model, priced with the per-block miss rates of a run with it, gets
     the same memory term when both ran the same code on the same inputs."""
@@ -111,13 +165,14 @@ def test_borrowed_miss_rates_reproduce_the_cache_model_on_the_same_inputs(libs, 
 
 
 def test_cache_model_misses_follow_the_working_set(libs, tmp_path):
-    """qemu_probe's llt factors an n x n matrix of doubles it has just written: n = 40 (12.5 KB) sits
-    in the A53's 32 KB L1D, so the factorization almost never misses and never leaves L2; n = 300
-    (720 KB) exceeds the 512 KB L2, so it misses in both levels, the same way each time."""
+    """qemu_probe's llt factors an n x n matrix of doubles; twice the same size, the second solve works
+    on the first one's addresses. n = 40 (12.5 KB) sits in the A53's 32 KB L1D, so the second
+    factorization almost never misses and never leaves L2; n = 300 (720 KB) exceeds the 512 KB L2,
+    so it misses in both levels, the same way each time."""
     t = targets.load("rpi3")
     exe = build.cross_build(t, "qemu_probe").path
-    _, _, prof, _ = _profiled_run(t, exe, ["llt", "40", "llt", "300", "llt", "300"], tmp_path, libs, "ws")
-    small, big1, big2 = prof.regions
+    _, _, prof, _ = _profiled_run(t, exe, ["llt", "40", "llt", "40", "llt", "300", "llt", "300"], tmp_path, libs, "ws")
+    _, small, big1, big2 = prof.regions
     assert small.cache["load_l1_miss"] < 0.01 * small.cache["load_acc"] and small.cache["load_l2_miss"] == 0
     assert big1.cache["load_l1_miss"] > 0.01 * big1.cache["load_acc"]
     assert big1.cache["load_l2_miss"] > 5000

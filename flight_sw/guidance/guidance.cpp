@@ -5,15 +5,14 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "flight_sw/solver/elapsed.hpp"
+
 namespace rvd::guidance {
 
 namespace {
 constexpr double kDeg = 3.14159265358979323846 / 180.0;
-using Clock = std::chrono::steady_clock;
-
-double elapsed_us(Clock::time_point t0) {
-  return std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
-}
+using Clock = solver::SteadyClock;
+using solver::elapsed_us;
 }  // namespace
 
 const char* to_string(StepStatus s) {

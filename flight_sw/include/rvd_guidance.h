@@ -206,7 +206,10 @@ typedef struct rvd_guidance_law {
   void* (*create)(const rvd_guidance_config* config, char* error, size_t error_size);
   void (*reset)(void* law);
   /* budget_s: wall time the step may take on this computer's clock [s] (> 0). Returns 0; non-zero is a
-   * law fault (zero thrust). */
+   * law fault (zero thrust). The whole step is counted (instructions, cycle model): a law that reads
+   * the clock in it should convert the reading without a value-dependent path (on Armv7, libgcc's
+   * int64-to-double routine is one; flight_sw/solver/elapsed.hpp is not), or its estimate varies
+   * with the clock. */
   int (*step)(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_output* out);
   void (*destroy)(void* law);
 } rvd_guidance_law;

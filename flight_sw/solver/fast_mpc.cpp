@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "flight_sw/solver/elapsed.hpp"
 #include "flight_sw/solver/kkt.hpp"
 
 namespace rvd::solver {
@@ -33,8 +34,7 @@ size_t FastMpcSolver::workspace_bytes() const { return work_ ? work_->bytes() : 
 
 bool FastMpcSolver::time_up() const {
   if (settings_.time_limit_us <= 0.0) return false;
-  const double us = std::chrono::duration<double, std::micro>(Clock::now() - t_start_).count();
-  return us > settings_.time_limit_us;
+  return elapsed_us(t_start_) > settings_.time_limit_us;
 }
 
 // Shapes, finiteness and soft-row data, without allocating (OcpQp::validate() builds a message;
@@ -120,7 +120,7 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
     has_warm_ = false;
   }
   info_.status = st;
-  info_.solve_time_us = std::chrono::duration<double, std::micro>(Clock::now() - t_start_).count();
+  info_.solve_time_us = elapsed_us(t_start_);
   return st;
 }
 

@@ -129,18 +129,23 @@ class BlockProfiler:
     cache: "tuple[tuple[int, int, int], tuple[int, int, int], tuple[int, int, int]] | None" = None
     #                                    (l1d, l1i, l2) as (size bytes, ways, line bytes); None: off
     library: Path | None = None        # default: build_profile()
+    # "solves": the cache model sees the solve regions only (each starts from the state the previous
+    # one left: repeatable); "process": every access (a board calibration compares the whole process)
+    cache_scope: str = "solves"
 
     def qemu_args(self) -> list[str]:
         if "," in str(self.out):
             raise ValueError(f"profile path must not contain ',': {self.out}")
+        if self.cache_scope not in ("solves", "process"):
+            raise ValueError(f"cache_scope must be 'solves' or 'process', not {self.cache_scope!r}")
         lib = self.library or build_profile()
         if lib is None:
             raise RuntimeError("block-profile plugin not built: run `python -m qemu.plugin`")
         args = f"{lib},out={self.out}"
         if self.cache is not None:
             l1d, l1i, l2 = self.cache
-            args += ",cache=on" + "".join(f",{name}={g[0]}:{g[1]}:{g[2]}"
-                                          for name, g in (("l1d", l1d), ("l1i", l1i), ("l2", l2)))
+            args += ",cache=on" if self.cache_scope == "solves" else ",cache=process"
+            args += "".join(f",{name}={g[0]}:{g[1]}:{g[2]}" for name, g in (("l1d", l1d), ("l1i", l1i), ("l2", l2)))
         return ["-plugin", args]
 
 

@@ -10,6 +10,13 @@
 //                        spins 4*SPIN iterations (per-thread counting)
 //   wild                 marker calls with a slot pointer into unmapped memory (plugin robustness)
 //   echo HOST PORT       TCP connect (HOST: name or address), send 64 bytes, expect them back
+//   elapsed NS           one marked region: the flight software's conversion of a steady_clock
+//                        duration of NS nanoseconds to microseconds (rvd::solver::to_us)
+//   chrono NS            the same with std::chrono's own conversion (duration<double, micro>)
+//   sum KB               one marked region: reads KB kilobytes (at most 64) of a static table
+//                        that nothing outside the marked regions touches
+//   touch KB             outside any region: read and write KB kilobytes (at most 1024) of another
+//                        static buffer, as the link's work between two solves does in miniature
 //
 // The two-instruction loop is written in assembly so its instruction count is known exactly:
 // a marked region of SPIN iterations counts 2*SPIN plus a constant.
@@ -30,6 +37,7 @@
 #include <thread>
 
 #include "flight_sw/app/solve_marker.hpp"
+#include "flight_sw/solver/elapsed.hpp"
 
 namespace {
 
@@ -164,9 +172,44 @@ int run_wild() {
   return 0;
 }
 
+// A duration converted inside a marked region. The input is read (volatile) after the begin marker
+// and the result stored before the end marker, so the conversion cannot move out of the region.
+int run_conversion(rvd::SolveMarker& marker, std::uint64_t ns, bool flight, std::uint32_t step) {
+  volatile std::int64_t input = static_cast<std::int64_t>(ns);
+  volatile double us = 0.0;
+  marker.begin(step);
+  const std::chrono::steady_clock::duration d = std::chrono::nanoseconds(input);
+  us = flight ? rvd::solver::to_us(d) : std::chrono::duration<double, std::micro>(d).count();
+  const std::uint64_t insns = marker.end(step);
+  std::printf("%s step=%u ns=%llu us=%.3f insns=%llu\n", flight ? "elapsed" : "chrono", step,
+              static_cast<unsigned long long>(ns), static_cast<double>(us), static_cast<unsigned long long>(insns));
+  // both conversions are exact up to the final division (ns < 2^53): the same double
+  return us == std::chrono::duration<double, std::micro>(d).count() ? 0 : 1;
+}
+
+int run_sum(rvd::SolveMarker& marker, std::uint64_t kb, std::uint32_t step) {
+  static volatile double table[64 * 1024 / sizeof(double)];
+  const std::uint64_t n = kb * 1024 / sizeof(double);
+  marker.begin(step);
+  double sum = 0.0;
+  for (std::uint64_t i = 0; i < n; ++i) sum += table[i];
+  const std::uint64_t insns = marker.end(step);
+  std::printf("sum step=%u kb=%llu sum=%g insns=%llu\n", step, static_cast<unsigned long long>(kb), sum,
+              static_cast<unsigned long long>(insns));
+  return 0;
+}
+
+int run_touch(std::uint64_t kb) {
+  static volatile std::uint8_t buffer[1024 * 1024];
+  for (std::uint64_t i = 0; i < kb * 1024; i += 16) buffer[i] = static_cast<std::uint8_t>(buffer[i] + 1);
+  std::printf("touch kb=%llu\n", static_cast<unsigned long long>(kb));
+  return 0;
+}
+
 int usage() {
   std::fprintf(stderr,
-               "usage: qemu_probe [markers STEPS SPIN] [llt N] [timing SPIN REPEAT] [threaded SPIN] [wild] [echo HOST PORT]...\n");
+               "usage: qemu_probe [markers STEPS SPIN] [llt N] [timing SPIN REPEAT] [threaded SPIN] [wild] "
+               "[echo HOST PORT] [elapsed NS] [chrono NS] [sum KB] [touch KB]...\n");
   return 2;
 }
 
@@ -198,6 +241,16 @@ int main(int argc, char** argv) {
     } else if (cmd == "echo" && i + 2 < argc && parse_u64(argv[i + 2], a)) {
       status = run_echo(argv[i + 1], a);
       i += 3;
+    } else if ((cmd == "elapsed" || cmd == "chrono") && i + 1 < argc && parse_u64(argv[i + 1], a) &&
+               a < (1ULL << 53)) {
+      status = run_conversion(marker, a, cmd == "elapsed", next_step++);
+      i += 2;
+    } else if (cmd == "sum" && i + 1 < argc && parse_u64(argv[i + 1], a) && a <= 64) {
+      status = run_sum(marker, a, next_step++);
+      i += 2;
+    } else if (cmd == "touch" && i + 1 < argc && parse_u64(argv[i + 1], a) && a <= 1024) {
+      status = run_touch(a);
+      i += 2;
     } else {
       return usage();
     }
