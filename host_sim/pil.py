@@ -35,6 +35,8 @@ from host_sim.server import FLIGHT_COLUMNS, SAFETY_COLUMNS, PilServer, RunSummar
 from host_sim.simulator import Simulator
 
 REPO = Path(__file__).resolve().parent.parent
+# The whole environment of a flight process under QEMU user mode (besides the link key).
+EMULATED_FLIGHT_ENV = {"PATH": "/usr/local/bin:/usr/bin:/bin", "LC_ALL": "C"}
 FLIGHT_EXE_NAME = "rvd_flight_sw"
 
 
@@ -161,6 +163,16 @@ def end_of_run_meta(s, cfg, flight_exit_code) -> dict:
         safety=s.safety, flight_config=s.flight_config, law_faults=s.law_faults,
     )
 
+def flight_environment(cmd: list[str], link_key: bytes) -> dict[str, str]:
+    """The flight process's environment: this process's plus the link key; under QEMU user mode only
+    EMULATED_FLIGHT_ENV and the key. QEMU user mode hands its own environment to the guest, whose
+    size moves the guest's initial stack and so the cache model's figures: the same few variables in
+    every checkout and shell make the estimate independent of them."""
+    name = Path(cmd[0]).name
+    base = EMULATED_FLIGHT_ENV if name.startswith("qemu-") and not name.startswith("qemu-system") else os.environ
+    return {**base, msg.KEY_ENV: link_key.hex()}
+
+
 def run_pil(
     scenario: Scenario | str,
     *,
@@ -198,7 +210,6 @@ def run_pil(
     cfg.endpoint = f"tcp/{host_address}:{port}"
     cfg.run_id = msg.check_run_id(cfg.run_id if cfg.run_id != "run" else uuid.uuid4().hex[:12])
     link_key = cfg.link_key or secrets.token_bytes(msg.KEY_SIZE)  # fresh for every run unless given
-    flight_env = {**os.environ, msg.KEY_ENV: link_key.hex()}
     # --verbose: the flight software notes its events (connects, rejected input, exit) in flight_sw.log.
     # The error model the flight software's navigation filter and margins assume is the scenario's.
     args = ["--connect", flight_endpoint or cfg.endpoint, "--run", cfg.run_id, "--verbose",
@@ -213,6 +224,7 @@ def run_pil(
         elif shutil.which(prefix[0]) is None:
             raise FlightLaunchError(f"runner {prefix[0]!r}: not found on PATH")
         cmd = prefix + [str(exe), *args]
+    flight_env = flight_environment(cmd, link_key)
 
     run_dir = Path(run_dir) if run_dir else default_run_dir(scen.name)
     record_meta = dict(sim.record_meta())

@@ -47,13 +47,13 @@ def probe(request):
     return t, build.cross_build(t, "qemu_probe").path
 
 
-def _profiled_run(t, exe, args, tmp, libs, tag, cache=True, scope="solves"):
+def _profiled_run(t, exe, args, tmp, libs, tag, cache=True, scope="solves", env=None):
     counter_lib, profile_lib = libs
     model = cycles.CycleModel(t)
     ic = plugin.InsnCounter(log=tmp / f"{tag}.insns", library=counter_lib)
     bp = plugin.BlockProfiler(out=tmp / f"{tag}.blocks", cache=model.cache_geometry if cache else None,
                               library=profile_lib, cache_scope=scope)
-    proc = user.run(t, exe, args, plugin=[ic, bp], timeout_s=120)
+    proc = user.run(t, exe, args, plugin=[ic, bp], timeout_s=120, env=env)
     assert proc.returncode == 0, proc.stderr
     return model, plugin.read_log(tmp / f"{tag}.insns"), cycles.read_profile(tmp / f"{tag}.blocks"), \
         (tmp / f"{tag}.insns").read_text()
@@ -117,6 +117,27 @@ def test_clock_readings_inside_a_solve_do_not_change_its_figures(libs, probe, tm
     at_1ms, at_3ms = prof.regions[-2:]
     if t.arch == "armhf":
         assert at_1ms.insns == at_3ms.insns and _by_key(prof, at_1ms) != _by_key(prof, at_3ms)
+
+
+def test_the_users_environment_does_not_reach_an_emulated_flight_process(libs, probe, tmp_path, monkeypatch):
+    """QEMU user mode hands its environment to the guest, and its size moves the guest's initial
+    stack and so the cache sets of stack data. A flight process under QEMU gets a fixed environment
+    (the link key has a fixed length), so a checkout at another path or a longer shell environment
+    gives the same figures; a native flight process keeps the caller's environment."""
+    from host_sim.pil import EMULATED_FLIGHT_ENV, flight_environment
+
+    t, exe = probe
+    key = bytes(range(32))
+    figures = []
+    for extra in ("", "x" * 100):
+        monkeypatch.setenv("RVD_TEST_PADDING", extra)
+        cmd = user.command(t, exe, ["llt", "40"])
+        env = flight_environment(cmd, key)
+        assert set(env) == set(EMULATED_FLIGHT_ENV) | {"RVD_LINK_KEY"} and env["RVD_LINK_KEY"] == key.hex()
+        assert flight_environment([str(exe)], key)["RVD_TEST_PADDING"] == extra  # native: the caller's
+        _, _, prof, _ = _profiled_run(t, exe, ["llt", "40"], tmp_path, libs, f"env{len(extra)}", env=env)
+        figures.append([(r.insns, r.cache) for r in prof.regions])
+    assert figures[0] == figures[1] and figures[0]
 
 
 def test_the_work_between_solves_does_not_change_a_solves_cache_figures(libs, probe, tmp_path):
