@@ -275,6 +275,17 @@ std::map<std::string, Param> named_params() {
     d(p + ".los_half_angle_deg", [pick](AppConfig& c) -> double& { return pick(c).los_half_angle_deg; });
     d(p + ".u_max_mps", [pick](AppConfig& c) -> double& { return pick(c).u_max_mps; });
   }
+  // phases.NAME: one value for all three phases (a scenario that flies one MPC throughout says so in one
+  // setting: the config message carries 512 bytes of settings). Reads back the rendezvous value.
+  for (const char* name : {"N", "Ts_s", "Q", "R", "terminal_weight", "lambda", "los_half_angle_deg", "u_max_mps"}) {
+    const Param r = m[std::string("rendezvous.") + name], a = m[std::string("approach.") + name],
+                d3 = m[std::string("docking.") + name];
+    m[std::string("phases.") + name] = {r.get, [r, a, d3](AppConfig& c, const std::string& v) {
+                                          r.set(c, v);
+                                          a.set(c, v);
+                                          d3.set(c, v);
+                                        }};
+  }
   return m;
 }
 
