@@ -75,7 +75,7 @@ def _scenario(label: str):
 def _scenario_horizons(label: str) -> tuple[int, int, int]:
     """The horizons a scenario flies without --horizon: its [guidance] table's, else the defaults."""
     g = getattr(_scenario(label), "guidance", {}) or {}
-    return tuple(int(g.get(f"{p}.N", d)) for p, d in zip(("rendezvous", "approach", "docking"), DEFAULT_HORIZONS))
+    return tuple(int(g.get(f"{p}.N", g.get("phases.N", d))) for p, d in zip(("rendezvous", "approach", "docking"), DEFAULT_HORIZONS))
 
 
 def _sha(path: Path) -> str:
