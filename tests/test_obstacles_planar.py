@@ -5,7 +5,9 @@ holding radius and the entry cone in the MPC, judged on the truth.
 - test case A, ideal (no noise, impulsive): docks, every obstacle's clearance >= 1, the chaser faces
   the target's port at contact, the torque it commanded turned it there;
 - test case B, disturbed (sensor and attitude noise, thrust error, finite burns): docks, clearance >= 1;
-- the in-process path flies test case A as the executable does.
+- the in-process path flies test case A as the executable does;
+- after Gupta, Sarna et al.: docking round a platform past two stationary debris (which the
+  obstacle-blind guidance flies through).
 """
 import math
 
@@ -63,3 +65,16 @@ def test_the_in_process_path_flies_the_planar_scenario_as_the_executable_does(tm
     _, b = load_run(inproc_dir)
     cols = ["truth_x_m", "truth_y_m", "chaser_angle_rad", "torque_z_nm", "dv_x_mps", "dv_y_mps"]
     assert np.array_equal(a[cols].to_numpy(), b[cols].to_numpy(), equal_nan=True)  # the last row has no command
+
+
+def test_docking_round_a_platform_past_stationary_debris(tmp_path):
+    """After Gupta, Sarna et al.: the platform's circle (the fixed holding radius) and two debris on the
+    way; without the obstacle rows the same guidance flies through the debris."""
+    summary, _ = run_pil("gupta_debris_docking", sensor_noise=False, thrust_noise=False, impulsive=True,
+                         config=ServerConfig(delay_model="none"), run_dir=tmp_path / "rows")
+    assert_docked_clear(summary)
+    assert summary.safety["figures"]["min_range_com_m"] >= 2.5 - 1e-3  # round the platform, never into it
+    blind, _ = run_pil("gupta_debris_docking", sensor_noise=False, thrust_noise=False, impulsive=True,
+                       config=ServerConfig(delay_model="none"), run_dir=tmp_path / "blind",
+                       flight_args=["--obstacles", "off"])
+    assert min(o["min_clearance"] for o in blind.safety["figures"]["obstacles"].values()) < 1.0
