@@ -5,6 +5,8 @@ against host_sim over Zenoh (lockstep), and turned into a report.
     python -m bench.campaign --targets beaglebone   one target (TARGET=beaglebone make pil)
     python -m bench.campaign --targets q7s --cpu cortex-a8     swap the emulated CPU model
     python -m bench.campaign --full                 more scenarios (100 random starts, as ch. 6)
+    python -m bench.campaign --scenarios case1_crossing_obstacle,dong_2d_case_a --horizon-sets scenario
+                                                    named scenarios (or TOML paths), each at its own horizons
 
 Per target:
   1. cross-build the static flight executable (cross/, qemu/targets.toml);
@@ -52,6 +54,8 @@ class Spec:
     targets: list[str]
     cpu: str | None = None
     scenarios: list[str] = field(default_factory=lambda: ["case1_vbar", "random:1", "random:2"])
+    # Horizon sets flown per scenario; an empty list flies each scenario at its own horizons (its
+    # [guidance] table's, else the flight software's defaults) without --horizon.
     horizon_sets: list[tuple[int, int, int]] = field(default_factory=lambda: list(HORIZON_SETS))
     truth: str = "nonlinear"
     noise: bool = True
@@ -66,6 +70,12 @@ def _scenario(label: str):
     if label.startswith("random:"):
         return scenarios.random_scenario(int(label.split(":", 1)[1]))
     return scenarios.load(label)
+
+
+def _scenario_horizons(label: str) -> tuple[int, int, int]:
+    """The horizons a scenario flies without --horizon: its [guidance] table's, else the defaults."""
+    g = getattr(_scenario(label), "guidance", {}) or {}
+    return tuple(int(g.get(f"{p}.N", g.get("phases.N", d))) for p, d in zip(("rendezvous", "approach", "docking"), DEFAULT_HORIZONS))
 
 
 def _sha(path: Path) -> str:
@@ -236,16 +246,17 @@ class Campaign:
         # emulation time of a solve) ran in the ideal Case 1; these runs borrow its per-block miss
         # rates (without checks: the first run of the campaign runs it).
         reference = tdir / "case1-ideal-1" if spec.checks else None
-        for horizons in spec.horizon_sets:
-            hlabel = "N" + "-".join(map(str, horizons))
+        for horizon_set in spec.horizon_sets or [None]:
             for label in spec.scenarios:
-                run_dir = tdir / f"{label.replace(':', '')}-{hlabel}"
+                horizons = horizon_set or _scenario_horizons(label)
+                hlabel = "N" + "-".join(map(str, horizons)) if horizon_set else "Nscenario"
+                run_dir = tdir / f"{Path(label).stem if label.endswith('.toml') else label.replace(':', '')}-{hlabel}"
                 cache = reference is None
                 fp = hashlib.sha256(f"{fp_base}{label}{horizons}{delay_cpi}{cache}".encode()).hexdigest()[:16]
                 cfg = ServerConfig(delay_model="estimated", cpi=delay_cpi, clock_hz=t.clock_hz)
                 self.run(run_dir, label, fingerprint=fp,
                          flight_command=user_mode(run_dir, run_dir.with_suffix(".insns"), cache=cache),
-                         flight_args=["--horizon", ",".join(map(str, horizons))], config=cfg,
+                         flight_args=["--horizon", ",".join(map(str, horizons))] if horizon_set else [], config=cfg,
                          meta={**base, "mode": "user", "horizons": horizons, "kind": "timing",
                                "delay_cpi": delay_cpi, "delay_cpi_source": delay_source,
                                "memory_term": "cache model" if cache else
@@ -317,7 +328,11 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
     ap.add_argument("--targets", default="q7s,rpi3", help="comma-separated targets of qemu/targets.toml (default q7s,rpi3)")
     ap.add_argument("--cpu", default=None, help="override the emulated CPU model (e.g. cortex-a8)")
-    ap.add_argument("--scenarios", default=None, help="comma-separated scenario names or random:<seed>")
+    ap.add_argument("--scenarios", default=None,
+                    help="comma-separated scenario names, TOML paths or random:<seed> (obstacle and planar scenarios too)")
+    ap.add_argument("--horizon-sets", default="all", choices=("all", "default", "scenario"),
+                    help="horizons per scenario: all three sets (15/5/5, 30/15/12, 45/30/30; default), the default "
+                         "30/15/12 only, or each scenario's own (its [guidance] table's), e.g. for the obstacle scenarios")
     ap.add_argument("--full", action="store_true", help="Case 1-3 and 20 random starts (long)")
     ap.add_argument("--truth", choices=("nonlinear", "cw"), default="nonlinear")
     ap.add_argument("--no-noise", action="store_true")
@@ -337,6 +352,10 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
         spec.scenarios = ["case1_vbar", "case2_rbar", "case3_rotating"] + [f"random:{i}" for i in range(1, 21)]
     if a.scenarios:
         spec.scenarios = [s for s in a.scenarios.split(",") if s]
+    if a.horizon_sets == "default":
+        spec.horizon_sets = [DEFAULT_HORIZONS]
+    elif a.horizon_sets == "scenario":
+        spec.horizon_sets = []
     return spec, Path(a.out), a.report_only, a.replace
 
 

@@ -11,7 +11,7 @@ velocity from the table's initial states. What differs, and why:
 - our input is the impulsive delta-v of a period (the paper's a zero-order-hold thrust): u_max =
   20 N x 15 s / 6500 kg per axis, and R scaled by (m / Ts)^2 so that it weighs the same thrust;
 - the holding distance is our keep-out plane of radius 2.3 m (rotating planes, the dissertation's),
-  the paper's a dynamic holding radius; the run ends at |rho| <= 2.3 m + 2 %;
+  the paper's a sphere of that radius; the run ends at |rho| <= 2.3 m + 2 %;
 - the solver: our converged interior point (default) or, with --fixed-barrier, the paper's Fast MPC
   (fixed barrier kappa 0.05, 10 iterations, line-search alpha 0.01; our backtracking halves the step
   where the paper's multiplies it by beta 0.95).

@@ -298,9 +298,9 @@ def plot_trajectory(meta: dict, steps: pd.DataFrame, path: Path) -> None:
     for ph, g in steps.groupby("phase"):
         if ph in PHASES:
             ax.plot(g["truth_y_m"], g["truth_x_m"], ".", ms=3, color=colors[ph], label=PHASES[ph])
-    r1 = 200.0
+    r1 = float(((meta.get("scenario") or {}).get("safety") or {}).get("keepout_radius_m", 200.0))
     th = np.linspace(0, 2 * np.pi, 200)
-    ax.plot(r1 * np.cos(th), r1 * np.sin(th), "k:", lw=1, label="keep-out r1 = 200 m")
+    ax.plot(r1 * np.cos(th), r1 * np.sin(th), "k:", lw=1, label=f"keep-out r1 = {r1:g} m")
     ax.plot([0], [0], "k+", ms=12)
     ax.set_xlabel("V-bar y [m]")
     ax.set_ylabel("R-bar x [m]")
@@ -438,11 +438,12 @@ def _phase_name(p) -> str:
 
 
 def verdict_table(rows: pd.DataFrame, metas: list[dict], cpu_labels: dict) -> pd.DataFrame:
-    """One row per target, phase and horizon: the deadline, the worst and p99 estimated target time,
+    """One row per target, phase, horizon and period: the deadline, the worst and p99 estimated target time,
     the margins, the safety violations of that phase in the runs flown with that horizon, the verdict."""
     out = []
     by_dir = {m["dir"]: m for m in metas}
-    for (target, phase, n), g in rows.groupby(["target", "phase_name", "N"], sort=False):
+    # Per control period too: scenarios flown at their own periods (the obstacle campaign) have their own deadlines.
+    for (target, phase, n, _), g in rows.groupby(["target", "phase_name", "N", "cmd_period_s"], sort=False):
         deadline_us = g["budget_us"].max()
         worst = g.loc[g["target_us_high"].idxmax()]
         p99 = g["target_us_nominal"].quantile(0.99)
@@ -751,12 +752,16 @@ def write(out: Path) -> Path:
         plot_scaling(table, out / "scaling.png", cpu_labels, prov["host_cpu"])
     traj = []
     seen = set()
-    for m in metas:
+    # One trajectory per scenario: its run at the default horizons, else its first timing run (a campaign
+    # that flies each scenario at its own horizons).
+    timing = [m for m in metas if m.get("kind") == "timing"]
+    for m in sorted(timing, key=lambda m: tuple(m.get("horizons", ())) != (30, 15, 12)):
         label = m.get("scenario_label")
-        if m.get("kind") == "timing" and tuple(m.get("horizons", ())) == (30, 15, 12) and label not in seen:
+        if label not in seen:
             seen.add(label)
             _, steps = load_run(out / m["dir"])
-            p = out / f"trajectory_{label.replace(':', '')}.png"
+            name = Path(label).stem if str(label).endswith(".toml") else str(label).replace(":", "")
+            p = out / f"trajectory_{name}.png"
             plot_trajectory(m, steps, p)
             traj.append((label, m["dir"], p.name))
 

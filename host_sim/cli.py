@@ -180,7 +180,7 @@ def _target_setup(args, run_dir: Path):
 def _flight_failure(run_dir: Path, summary, exit_code) -> str | None:
     """Why the flight process failed, from its exit code and the last lines of its log."""
     lost = summary.hello is None or "flight software" in summary.end
-    bad_exit = exit_code not in (None, 0) and not (exit_code < 0 and summary.docked)
+    bad_exit = exit_code not in (None, 0) and not (exit_code < 0 and summary.reached)
     if not (lost or bad_exit):
         return None
     how = ("killed by signal %d" % -exit_code) if isinstance(exit_code, int) and exit_code < 0 else f"exit code {exit_code}"
@@ -365,7 +365,7 @@ def _main(argv=None) -> int:
     print(f"run record: {run_dir} (digest without clock readings {record_digest(run_dir)[:16]})")
     if failure:
         return 1
-    return 0 if summary.docked else (130 if interrupted else 1)
+    return 0 if summary.reached else (130 if interrupted else 1)
 
 
 if __name__ == "__main__":

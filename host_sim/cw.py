@@ -27,9 +27,14 @@ def cw_matrix(n_rad_s: float) -> np.ndarray:
 
 
 def cw_stm(n_rad_s: float, t_s: float) -> np.ndarray:
-    """Closed-form CW state transition matrix Phi(t) (6x6): x(t) = Phi(t) x(0) for free motion."""
+    """Closed-form CW state transition matrix Phi(t) (6x6): x(t) = Phi(t) x(0) for free motion.
+    n = 0 (no orbit: an air-bearing table) is the limit, a double integrator."""
     n = float(n_rad_s)
     t = float(t_s)
+    if n == 0.0:
+        phi = np.eye(6)
+        phi[0:3, 3:6] = t * np.eye(3)
+        return phi
     nt = n * t
     s = math.sin(nt)
     c = math.cos(nt)
@@ -48,6 +53,8 @@ def cw_forced_response(n_rad_s: float, t_s: float) -> np.ndarray:
     rest at the origin, so x(t) = Phi(t) x(0) + Gamma(t) a. Gamma(t) = integral_0^t Phi(u) [0; I] du."""
     n = float(n_rad_s)
     t = float(t_s)
+    if n == 0.0:  # the double integrator's limit
+        return np.vstack((0.5 * t * t * np.eye(3), t * np.eye(3)))
     nt = n * t
     s = math.sin(nt)
     # Cancellation-free forms: pulses last milliseconds, so n*t can be ~1e-5.

@@ -39,6 +39,8 @@ KEYS = {
     'config': 'rvd/<run>/config',
     'config_echo': 'rvd/<run>/config_echo',
     'law': 'rvd/<run>/law',
+    'chaser_attitude': 'rvd/<run>/chaser_attitude',
+    'torque': 'rvd/<run>/torque',
 }
 
 
@@ -209,6 +211,31 @@ class ObstacleStatus:
 
 
 @dataclass
+class ChaserAttitude:
+    """The chaser's measured attitude at nav step k (host -> flight, before nav k; runs with the planar truth)."""
+
+    TYPE = 18
+    BODY = struct.Struct('<IId4d3d')
+    step: int = 0  # the nav step this belongs to
+    reserved: int = 0  # 0
+    t_s: float = 0.0  # simulation time of the measurement [s]
+    q_lvlh_chaser: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 4)  # chaser attitude, quaternion LVLH <- chaser body (w, x, y, z); its docking axis is body +x
+    omega_chaser_rad_s: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 3)  # chaser body rate relative to LVLH, chaser body axes [rad/s]
+
+
+@dataclass
+class Torque:
+    """The torque commanded for step k (flight -> host, before cmd k; answers a chaser_attitude)."""
+
+    TYPE = 19
+    BODY = struct.Struct('<II3dd')
+    step: int = 0  # the nav step of the cmd this belongs to
+    reserved: int = 0  # 0
+    torque_body_nm: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 3)  # torque on the chaser, chaser body axes [N m], held from the burn start to the end of the period
+    torque_max_nm: float = 0.0  # the limit per axis the flight software planned with [N m]
+
+
+@dataclass
 class Config:
     """The run's vehicle and guidance settings (host -> flight), or what the flight software uses (its echo)."""
 
@@ -242,7 +269,7 @@ class Law:
     values: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 16)  # the named values, in the order of names
 
 
-MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Nav, Cmd, Telemetry, Bye, Obstacles, ObstacleStatus, Config, Law,)}
+MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Nav, Cmd, Telemetry, Bye, Obstacles, ObstacleStatus, ChaserAttitude, Torque, Config, Law,)}
 
 # Field layout per class: (name, kind, count) with kind 'str', 'f64' or 'int'.
 _LAYOUT = {
@@ -253,6 +280,8 @@ _LAYOUT = {
     Bye: (('reason', 'int', 1), ('reserved', 'int', 3), ('last_step', 'int', 1), ('text', 'str', 64),),
     Obstacles: (('step', 'int', 1), ('count', 'int', 1), ('sensed', 'int', 1), ('t_s', 'f64', 1), ('id', 'int', 8), ('t_seen_s', 'f64', 8), ('position_lvlh_m', 'f64', 24), ('velocity_lvlh_mps', 'f64', 24), ('semi_axes_m', 'f64', 24), ('q_lvlh_body', 'f64', 32),),
     ObstacleStatus: (('step', 'int', 1), ('received', 'int', 1), ('held', 'int', 1), ('capacity', 'int', 1), ('reserved', 'int', 1), ('dropped_total', 'int', 1), ('rejected_total', 'int', 1), ('held_id', 'int', 8),),
+    ChaserAttitude: (('step', 'int', 1), ('reserved', 'int', 1), ('t_s', 'f64', 1), ('q_lvlh_chaser', 'f64', 4), ('omega_chaser_rad_s', 'f64', 3),),
+    Torque: (('step', 'int', 1), ('reserved', 'int', 1), ('torque_body_nm', 'f64', 3), ('torque_max_nm', 'f64', 1),),
     Config: (('mass_kg', 'f64', 1), ('thrust_n', 'f64', 1), ('min_impulse_bit_s', 'f64', 1), ('horizon', 'int', 3), ('status', 'int', 1), ('pinned', 'int', 1), ('period_s', 'f64', 3), ('u_max_mps', 'f64', 3), ('law', 'str', 32), ('settings', 'str', 512), ('text', 'str', 64),),
     Law: (('step', 'int', 1), ('fault', 'int', 1), ('n_values', 'int', 1), ('reserved', 'int', 1), ('faults', 'int', 1), ('names', 'str', 384), ('values', 'f64', 16),),
 }

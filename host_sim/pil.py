@@ -31,7 +31,8 @@ from typing import Callable, Optional, Sequence
 from host_sim import messages as msg
 from host_sim.record import RunRecorder
 from host_sim.scenario import Scenario, load
-from host_sim.server import FLIGHT_COLUMNS, SAFETY_COLUMNS, PilServer, RunSummary, ServerConfig, free_tcp_port
+from host_sim.server import (FLIGHT_COLUMNS, PLANAR_COLUMNS, SAFETY_COLUMNS, PilServer, RunSummary, ServerConfig,
+                             free_tcp_port)
 from host_sim.simulator import Simulator
 
 REPO = Path(__file__).resolve().parent.parent
@@ -110,6 +111,21 @@ def error_model_args(sim: Simulator) -> list[str]:
             "--finite-burns", "off" if sim.impulsive else "on"]
 
 
+def truth_args(sim: Simulator) -> list[str]:
+    """Flight options for what the truth fixes beyond the vehicle the config message carries: on an
+    air-bearing table (the planar truth) no orbit, the chaser's inertia and torque limit, and where on
+    the target it docks (the table's scale is not the orbital scenarios' 0.5 m). On the
+    command line, so they are pinned (a scenario cannot contradict its own truth) and take none of the
+    config message's 512 bytes of settings."""
+    sc = sim.scenario
+    if not sc.is_planar:
+        return []
+    port = sc.target.docking_port_body_m
+    return ["--set", "relative_motion=double_integrator", "--set", f"attitude.inertia_kgm2={sc.planar.chaser_inertia_kgm2!r}",
+            "--set", f"attitude.torque_max_nm={sc.planar.torque_max_nm!r}",
+            *[a for axis, v in zip("xyz", port) for a in ("--set", f"port_body_{axis}_m={float(v)!r}")]]
+
+
 def write_law_values(run_dir: Path, values: list) -> None:
     """The guidance law's named values per step (rvd_guidance.h, rvd_guidance_output.named) as
     law_values.csv: step, name, value; nothing when the law logged none."""
@@ -149,7 +165,7 @@ def end_of_run_meta(s, cfg, flight_exit_code) -> dict:
     hello, telemetry and configuration; the same for a PIL run and the in-process path."""
     hello = s.hello
     return dict(
-        end=s.end, docked=s.docked, steps=s.steps, t_end_s=s.t_s, dv_total_mps=s.dv_total_mps, dv_l1_mps=s.dv_l1_mps,
+        end=s.end, docked=s.docked, held=s.held, steps=s.steps, t_end_s=s.t_s, dv_total_mps=s.dv_total_mps, dv_l1_mps=s.dv_l1_mps,
         dv_per_phase_mps=s.dv_per_phase_mps, time_per_phase_s=s.time_per_phase_s,
         final_range_to_port_m=s.final_range_to_port_m, nav_resends=s.nav_resends,
         late_commands=s.late_commands, rejected_messages=s.rejected_messages,
@@ -213,7 +229,8 @@ def run_pil(
     # --verbose: the flight software notes its events (connects, rejected input, exit) in flight_sw.log.
     # The error model the flight software's navigation filter and margins assume is the scenario's.
     args = ["--connect", flight_endpoint or cfg.endpoint, "--run", cfg.run_id, "--verbose",
-            *error_model_args(sim), *(["--obstacles", "on"] if sim.scenario.obstacles else []), *flight_args]
+            *error_model_args(sim), *(["--obstacles", "on"] if sim.scenario.obstacles else []), *truth_args(sim),
+            *flight_args]
     if flight_command is not None:
         cmd = list(flight_command(args))
     else:
@@ -228,13 +245,14 @@ def run_pil(
 
     run_dir = Path(run_dir) if run_dir else default_run_dir(scen.name)
     record_meta = dict(sim.record_meta())
-    record_meta.update(run_id=cfg.run_id, flight_command=cmd, truth=truth, lockstep=cfg.lockstep,
+    record_meta.update(run_id=cfg.run_id, flight_command=cmd, truth=sim.truth, lockstep=cfg.lockstep,
                        delay_model=cfg.delay_model, zenoh_mode=cfg.mode,
                        link_auth=f"HMAC-SHA-256 tag of {msg.TAG_SIZE} bytes on every message, per-run key "
                                  f"(handed over in ${msg.KEY_ENV}, not recorded)",
                        host_speed_dependent=cfg.host_speed_dependent())
     record_meta.update(meta or {})
-    recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=FLIGHT_COLUMNS + SAFETY_COLUMNS)
+    recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=FLIGHT_COLUMNS + SAFETY_COLUMNS +
+                           (PLANAR_COLUMNS if sim.scenario.is_planar else ()))
     proc = None
 
     def flight_exited():

@@ -13,6 +13,16 @@ leaves open, and ours:
 `random_scenario(seed)` draws the dissertation's Monte Carlo initial states (section 5.4).
 Obstacles (ellipsoidal keep-out zones) are `[[obstacles]]` tables, checked at load time
 (host_sim.obstacles); a scenario without any has no obstacle anywhere.
+
+`dynamics = "planar"` puts the run on an air-bearing table instead of an orbit (Dong, Ghiglino et
+al.'s 2-D testbed, their eq. 4): x, y and the chaser's rotation about z, no gravity gradient, the
+target moving at constant velocity and turning at a constant rate. The `[planar]` table gives the
+table-frame states of target and chaser (Table 2's units: m, deg, m/s, deg/s), the chaser's
+inertia and torque limit; the loader puts the chaser's relative state into `[chaser]` and the
+target's angle and rate into `[target]` (so neither may be given there), and an obstacle with
+`frame = "table"` has its state converted from the table frame as well. The guidance's "LVLH" is
+then the frame that translates with the target's centre of mass with the table's axes (z up),
+where the relative motion is a double integrator.
 """
 
 from __future__ import annotations
@@ -96,6 +106,25 @@ class TargetConfig:
 
 
 @dataclass(frozen=True)
+class PlanarConfig:
+    """An air-bearing table (`dynamics = "planar"`): table-frame states [x (m), y (m), angle (deg),
+    x rate (m/s), y rate (m/s), angle rate (deg/s)], the chaser's inertia about z, its torque limit
+    (held over a control period) and the attitude sensor's noise."""
+
+    target_table: tuple[float, float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    chaser_table: tuple[float, float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    chaser_inertia_kgm2: float = 0.0
+    torque_max_nm: float = 0.0
+    sigma_angle_deg: float = 0.0
+    sigma_rate_deg_s: float = 0.0
+
+    def target_table_state(self, t_s: float) -> np.ndarray:
+        """[x, y, vx, vy] of the target's centre of mass on the table at t_s (constant velocity)."""
+        x, y, _, vx, vy, _ = self.target_table
+        return np.array([x + vx * t_s, y + vy * t_s, vx, vy])
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str
     description: str = ""
@@ -108,6 +137,12 @@ class Scenario:
     sensors: SensorParams = field(default_factory=SensorParams)
     safety: SafetyLimits = field(default_factory=SafetyLimits)
     obstacles: tuple[Obstacle, ...] = ()  # ellipsoidal keep-out zones ([[obstacles]]; host_sim.obstacles)
+    dynamics: str = "orbital"             # or "planar": an air-bearing table (PlanarConfig)
+    # A rendezvous to a holding distance instead of a docking (Dong et al.'s 3-D scenario, Weiss et al.'s):
+    # the run ends, reached ("held"), once the true range to the target's centre of mass is at most this.
+    # 0: a docking, ended by the flight software's docked declaration.
+    hold_range_m: float = 0.0
+    planar: PlanarConfig = field(default_factory=PlanarConfig)
     # [guidance]: flight software settings by their --set names (rvd_flight_sw --list-params), sent to it
     # with the vehicle at the start of a run; the flight software refuses a name it does not know.
     guidance: dict = field(default_factory=dict)
@@ -118,14 +153,24 @@ class Scenario:
         d = _plain(dataclasses.asdict(self))
         if not self.obstacles:
             del d["obstacles"]
+        if self.dynamics == "orbital":  # likewise the table of a planar run
+            del d["dynamics"], d["planar"]
+        if not self.hold_range_m:  # and the end of a rendezvous to a holding distance
+            del d["hold_range_m"]
         return d
+
+    @property
+    def is_planar(self) -> bool:
+        return self.dynamics == "planar"
 
     def replace(self, **changes) -> "Scenario":
         """Copy with top-level fields replaced (e.g. chaser=dataclasses.replace(s.chaser, ...))."""
         return dataclasses.replace(self, **changes)
 
 
+DYNAMICS = ("orbital", "planar")
 _SECTIONS = {
+    "planar": PlanarConfig,
     "orbit": OrbitConfig,
     "chaser": ChaserConfig,
     "target": TargetConfig,
@@ -134,7 +179,7 @@ _SECTIONS = {
     "sensors": SensorParams,
     "safety": SafetyLimits,
 }
-_TOP_LEVEL = {"name", "description", "timeout_s", "obstacles", "guidance"}
+_TOP_LEVEL = {"name", "description", "timeout_s", "obstacles", "guidance", "dynamics", "hold_range_m"}
 
 
 def _plain(obj):
@@ -185,6 +230,13 @@ def from_dict(data: dict[str, Any], source: str = "<dict>") -> Scenario:
                             f"and sections {sorted(_SECTIONS)}")
     if "name" not in data:
         raise ScenarioError(f"{source}: missing 'name'")
+    dynamics = data.get("dynamics", "orbital")
+    if dynamics not in DYNAMICS:
+        raise ScenarioError(f"{source} dynamics: expected one of {list(DYNAMICS)}, got {dynamics!r}")
+    if dynamics == "planar":
+        data = _planar_to_relative(data, source)
+    elif "planar" in data:
+        raise ScenarioError(f"{source}: a [planar] table needs dynamics = \"planar\"")
     parts = {}
     for section, cls in _SECTIONS.items():
         table = data.get(section, {})
@@ -197,9 +249,56 @@ def from_dict(data: dict[str, Any], source: str = "<dict>") -> Scenario:
         raise ScenarioError(str(exc)) from None
     scenario = Scenario(name=str(data["name"]), description=str(data.get("description", "")),
                         timeout_s=_number(data.get("timeout_s", 12000.0), f"{source} timeout_s"), obstacles=obstacles,
+                        dynamics=dynamics, hold_range_m=_number(data.get("hold_range_m", 0.0), f"{source} hold_range_m"),
                         guidance=_guidance_section(data.get("guidance", {}), f"{source} [guidance]"), **parts)
     validate(scenario, source)
     return scenario
+
+
+def _planar_to_relative(data: dict, source: str) -> dict:
+    """A planar scenario's table-frame states as the relative ones every scenario has: the chaser's
+    state minus the target's into [chaser], the target's angle and rate into [target], obstacles with
+    frame = "table" shifted likewise (their velocity relative to the target's)."""
+    planar = data.get("planar")
+    if not isinstance(planar, dict) or "target_table" not in planar or "chaser_table" not in planar:
+        raise ScenarioError(f"{source}: dynamics = \"planar\" needs a [planar] table with target_table and chaser_table")
+    cfg = _build_section(PlanarConfig, planar, f"{source} [planar]")
+    data = dict(data)
+    chaser = dict(data.get("chaser", {}) or {})
+    target = dict(data.get("target", {}) or {})
+    for table, keys, name in ((chaser, ("position_lvlh_m", "velocity_lvlh_mps"), "chaser"),
+                              (target, ("initial_angle_deg", "spin_rate_deg_s"), "target")):
+        given = sorted(set(keys) & set(table))
+        if given:
+            raise ScenarioError(f"{source} [{name}] {given}: a planar scenario gives them in [planar] "
+                                f"{name}_table (table frame)")
+    tx, ty, ta, tvx, tvy, tw = cfg.target_table
+    cx, cy, _, cvx, cvy, _ = cfg.chaser_table
+    chaser.update(position_lvlh_m=[cx - tx, cy - ty, 0.0], velocity_lvlh_mps=[cvx - tvx, cvy - tvy, 0.0])
+    target.update(initial_angle_deg=ta, spin_rate_deg_s=tw)
+    data.update(chaser=chaser, target=target)
+    obstacles = []
+    for i, entry in enumerate(data.get("obstacles", []) or []):
+        if isinstance(entry, dict) and "frame" in entry:
+            entry = dict(entry)
+            frame = entry.pop("frame")
+            if frame not in ("table", "lvlh"):
+                raise ScenarioError(f"{source} [[obstacles]] #{i + 1} frame: \"table\" or \"lvlh\", got {frame!r}")
+            if frame == "table":
+                p = _planar_vector(entry.get("position_lvlh_m", [0.0, 0.0, 0.0]), f"{source} [[obstacles]] #{i + 1}")
+                v = _planar_vector(entry.get("velocity_lvlh_mps", [0.0, 0.0, 0.0]), f"{source} [[obstacles]] #{i + 1}")
+                entry["position_lvlh_m"] = [p[0] - tx, p[1] - ty, p[2]]
+                entry["velocity_lvlh_mps"] = [v[0] - tvx, v[1] - tvy, v[2]]
+        obstacles.append(entry)
+    if obstacles:
+        data["obstacles"] = obstacles
+    return data
+
+
+def _planar_vector(value, where: str) -> list[float]:
+    if not isinstance(value, list) or len(value) != 3:
+        raise ScenarioError(f"{where}: expected a list of 3 numbers, got {value!r}")
+    return [_number(v, where) for v in value]
 
 
 def _number(value, where: str) -> float:
@@ -228,6 +327,24 @@ def _build_section(cls, table: dict[str, Any], where: str):
     return cls(**values)
 
 
+def settings_text(guidance: dict) -> str:
+    """A scenario's [guidance] table as the config message's settings: NAME=VALUE;... with the flight
+    software's --set names (numbers in full precision, lists comma-separated, booleans on/off)."""
+    def text(v) -> str:
+        if isinstance(v, bool):
+            return "on" if v else "off"
+        if isinstance(v, (list, tuple)):
+            return ",".join(text(x) for x in v)
+        if isinstance(v, float):
+            return repr(v)
+        return str(v)
+    return ";".join(f"{k}={text(v)}" for k, v in guidance.items())
+
+
+#: Bytes of settings the config message carries (schema/rvd_messages.toml, config.settings).
+SETTINGS_BYTES = 512
+
+
 def _guidance_section(table, where: str) -> dict:
     """The [guidance] table: NAME = number, on/off boolean, choice name or list of numbers."""
     if not isinstance(table, dict):
@@ -248,6 +365,10 @@ def _guidance_section(table, where: str) -> dict:
             value = _number(value, f"{where} {key}")
             value = int(value) if value == int(value) and abs(value) < 1e15 and isinstance(table[key], int) else value
         out[key] = value
+    size = len(settings_text(out).encode())
+    if size > SETTINGS_BYTES:
+        raise ScenarioError(f"{where}: {size} bytes of settings as the config message carries them, at most "
+                            f"{SETTINGS_BYTES} (\"phases.NAME\" sets one value in all three phases)")
     return out
 
 
@@ -258,7 +379,9 @@ def validate(s: Scenario, source: str = "<scenario>") -> None:
             raise ScenarioError(f"{source}: {what}")
 
     need(s.timeout_s > 0.0, f"timeout_s must be > 0, got {s.timeout_s}")
-    need(100e3 <= s.orbit.altitude_m <= 2000e3, f"orbit altitude_m must be 100-2000 km (LEO), got {s.orbit.altitude_m}")
+    need(s.hold_range_m >= 0.0, f"hold_range_m must be >= 0 (0: a docking), got {s.hold_range_m}")
+    need(100e3 <= s.orbit.altitude_m <= 40000e3,
+         f"orbit altitude_m must be 100-40000 km (LEO to just above GEO), got {s.orbit.altitude_m}")
     need(0.0 <= s.orbit.inclination_deg <= 180.0, f"orbit inclination_deg must be 0-180, got {s.orbit.inclination_deg}")
     for label, vehicle in (("chaser", s.chaser), ("target", s.target)):
         need(vehicle.mass_kg > 0.0, f"{label} mass_kg must be > 0")
@@ -283,11 +406,22 @@ def validate(s: Scenario, source: str = "<scenario>") -> None:
     for name in ("thrust_error_sigmas", "geometry_tolerance_m", "docking_cone_tolerance_m", "docking_speed_tolerance_mps",
                  "thrust_command_tolerance_mps"):
         need(getattr(sf, name) >= 0.0, f"safety {name} must be >= 0, got {getattr(sf, name)}")
+    if s.is_planar:
+        pl = s.planar
+        need(pl.chaser_inertia_kgm2 > 0.0, f"planar chaser_inertia_kgm2 must be > 0, got {pl.chaser_inertia_kgm2}")
+        need(pl.torque_max_nm > 0.0, f"planar torque_max_nm must be > 0, got {pl.torque_max_nm}")
+        need(pl.sigma_angle_deg >= 0.0 and pl.sigma_rate_deg_s >= 0.0, "planar sigma_angle_deg, sigma_rate_deg_s must be >= 0")
+        need(s.guidance.get("relative_motion", "double_integrator") == "double_integrator",
+             "a planar scenario's guidance has no orbit: relative_motion is \"double_integrator\" (the host sets it)")
+        for o in s.obstacles:
+            need(o.motion == "constant_velocity",
+                 f"obstacle id {o.id}: on a table an obstacle moves at constant velocity, not {o.motion!r}")
     if s.obstacles:
         try:
             obstacle_config.validate(s.obstacles, chaser_position_lvlh_m=s.chaser.position_lvlh_m,
                                      target_radius_m=sf.collision_radius_m,
-                                     mean_motion_rad_s=s.orbit.mean_motion_rad_s, source=source)
+                                     mean_motion_rad_s=0.0 if s.is_planar else s.orbit.mean_motion_rad_s,
+                                     source=source)
         except obstacle_config.ObstacleError as exc:
             raise ScenarioError(str(exc)) from None
 

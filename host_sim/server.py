@@ -36,6 +36,7 @@ import numpy as np
 
 from host_sim import messages as msg
 from host_sim.obstacles import ObstacleField
+from host_sim.scenario import settings_text
 from host_sim.safety import UNITS as SAFETY_UNITS, SafetyMonitor, describe as describe_safety_episode
 
 PHASE_NAMES = {1: "rendezvous", 2: "approach", 3: "docking", 4: "docked"}
@@ -148,7 +149,8 @@ class ZenohLink:
         # the telemetry sent before it); the flight side's order is part of the protocol.
         # allowed_origin REMOTE: the host's own bye (same key) is not delivered back to it.
         for kind, cls in (("hello", msg.Hello), ("cmd", msg.Cmd), ("telemetry", msg.Telemetry), ("bye", msg.Bye),
-                          ("obstacle_status", msg.ObstacleStatus), ("config_echo", msg.Config), ("law", msg.Law)):
+                          ("obstacle_status", msg.ObstacleStatus), ("config_echo", msg.Config), ("law", msg.Law),
+                          ("torque", msg.Torque)):
             self._subs.append(self.session.declare_subscriber(
                 msg.key(kind, self.run_id),
                 z.handlers.Callback(lambda sample, kind=kind, cls=cls: self._on_sample(sample, kind, cls),
@@ -265,7 +267,7 @@ class ServerConfig:
 
 @dataclass
 class RunSummary:
-    end: str                            # "docked", "collision", "timeout", "flight software lost", ...
+    end: str                            # "docked", "held", "collision", "timeout", "flight software lost", ...
     steps: int
     t_s: float
     dv_total_mps: float
@@ -292,6 +294,12 @@ class RunSummary:
     flight_config: Optional[dict] = None          # the flight software's config echo: what it plans with
     law_faults: int = 0                           # guidance law faults (the harness commanded zero thrust)
     law_values: list = field(default_factory=list)  # (step, {name: value}) the law logged
+    held: bool = False                            # a rendezvous to a holding distance reached it (scenario hold_range_m)
+
+    @property
+    def reached(self) -> bool:
+        """The run did what its scenario asks: docked, or reached its holding distance."""
+        return self.docked or self.held
 
     def table(self) -> str:
         lines = [f"{'phase':<12}{'delta-v [m/s]':>15}{'time [s]':>12}"]
@@ -337,20 +345,6 @@ def check_cmd(cmd, hello, step: int, last_phase: int) -> Optional[str]:
     return None
 
 
-def settings_text(guidance: dict) -> str:
-    """A scenario's [guidance] table as the config message's settings: NAME=VALUE;... with the flight
-    software's --set names (numbers in full precision, lists comma-separated, booleans on/off)."""
-    def text(v) -> str:
-        if isinstance(v, bool):
-            return "on" if v else "off"
-        if isinstance(v, (list, tuple)):
-            return ",".join(text(x) for x in v)
-        if isinstance(v, float):
-            return repr(v)
-        return str(v)
-    return ";".join(f"{k}={text(v)}" for k, v in guidance.items())
-
-
 def vehicle_mismatch(echo, scenario) -> Optional[str]:
     """How the vehicle the flight software plans with (its config echo) differs from the truth's, or None."""
     truth = {"mass_kg": scenario.chaser.mass_kg, "thrust_n": scenario.thrusters.force_n,
@@ -376,6 +370,9 @@ FLIGHT_COLUMNS: tuple[str, ...] = (
     "dv_cmd_x_mps", "dv_cmd_y_mps", "dv_cmd_z_mps", "dv_alloc_x_mps", "dv_alloc_y_mps", "dv_alloc_z_mps",
     "nav_attempts", "round_trip_ms",
 )
+#: Per-step columns of a planar run (the chaser's rotation): true angle and rate at the step, the
+#: measured angle, the torque applied over the period.
+PLANAR_COLUMNS: tuple[str, ...] = ("chaser_angle_rad", "chaser_rate_rad_s", "meas_chaser_angle_rad", "torque_z_nm")
 #: Per-step columns of the safety monitor: the worst true margins over the period's path
 #: (corridor: distance outside the approach corridor; axial: distance along the docking axis;
 #: dock cone: distance outside the docking cone; speed: |v|_inf).
@@ -421,6 +418,8 @@ class PilServer:
                                   docked=False, final_range_to_port_m=math.nan)
         self._stop = threading.Event()
         self._rejection_events: dict[str, int] = {}
+        self._torques: dict[int, object] = {}  # planar runs: the torque message of each step, until applied
+        self.planar = bool(getattr(sim.scenario, "is_planar", False))
         sigma_w = math.sqrt(sim.scenario.thrust_error.steady_state_covariance()[0, 0])
         # The scenario's obstacles, moving with the truth's mean motion (host_sim.obstacles).
         self.obstacles = ObstacleField(sim.scenario.obstacles, sim.mean_motion_rad_s)
@@ -472,6 +471,10 @@ class PilServer:
             self._take_obstacle_status(message)
         elif isinstance(message, msg.Law):
             self._take_law(message)
+        elif isinstance(message, msg.Torque):
+            self._torques[message.step] = message
+            for old in [k for k in self._torques if k < message.step - 4]:
+                del self._torques[old]
         elif isinstance(message, msg.Config):
             return message
         elif isinstance(message, (msg.Cmd, msg.Bye, InvalidMessage)):
@@ -557,9 +560,27 @@ class PilServer:
         self.summary.obstacle_status = st
 
     def _put_obstacles(self, k: int, t_s: float) -> None:
-        """The obstacles message of step k, before its nav (only in scenarios with obstacles)."""
+        """The obstacles message of step k, before its nav (only in scenarios with obstacles), and on an
+        air-bearing table the chaser's measured attitude."""
         if len(self.obstacles):
             self.link.put("obstacles", obstacles_message(self.obstacles, k, t_s, self.sim.truth_lvlh()[0:3]))
+        if self.planar:
+            meas = self.sim.measure()
+            self.link.put("chaser_attitude", msg.ChaserAttitude(
+                step=int(k), reserved=0, t_s=float(t_s), q_lvlh_chaser=tuple(float(v) for v in meas.chaser_q_lvlh),
+                omega_chaser_rad_s=tuple(float(v) for v in meas.chaser_omega_rad_s)))
+
+    def _torque(self, k: int) -> tuple[float, Optional[str]]:
+        """Planar runs: the torque about z the flight software commanded with cmd k (0 when none came),
+        or why it cannot be applied."""
+        m = self._torques.pop(k, None)
+        if m is None:
+            self.event("no_torque", f"no torque message for step {k}: zero torque applied", step=k)
+            return 0.0, None
+        limit = self.sim.scenario.planar.torque_max_nm
+        if any(abs(v) > limit * (1.0 + 1e-9) for v in m.torque_body_nm):
+            return 0.0, f"torque {tuple(m.torque_body_nm)} N m beyond the limit +-{limit} N m"
+        return float(m.torque_body_nm[2]), None
 
     # After the flight process has exited, what it sent last (its bye) may still be in Zenoh's
     # receive path: wait this long with an empty inbox before calling the flight software lost.
@@ -762,7 +783,16 @@ class PilServer:
                     s.end = "docked" if s.docked else "flight software reports docked, truth disagrees"
                     self._log(k, meas, target, None, cmd, attempts, rtt_ms, truth=truth)
                     return
-                result = sim.apply_command(np.asarray(cmd.pulse_s, dtype=float), cmd.period_s, self._delay_s(cmd))
+                torque = 0.0
+                if self.planar:
+                    torque, why = self._torque(k)
+                    if why is not None:
+                        s.end = f"flight fault: invalid torque for step {k}: {why}"
+                        self.event("flight_fault", f"invalid torque for step {k}, not applied: {why}", step=k)
+                        self._log_without_cmd(meas, target, truth)
+                        return
+                result = sim.apply_command(np.asarray(cmd.pulse_s, dtype=float), cmd.period_s, self._delay_s(cmd),
+                                           torque_nm=torque)
                 margins = self.safety.period(cmd.phase, k, result.path_t_s, result.path_lvlh, cmd.dv_cmd_lvlh_mps,
                                              result.dv_lvlh_mps)
                 if cmd.guidance_status not in (0, 4):  # not a plain solve: say what was flown and why
@@ -777,6 +807,13 @@ class PilServer:
                 self._log(k, meas, target, result, cmd, attempts, rtt_ms, margins=margins)
             if not cfg.lockstep:
                 self._sleep_until(wall0 + sim.t_s / cfg.speedup)
+            hold = getattr(sim.scenario, "hold_range_m", 0.0)
+            if hold and sim.range_to_com_m() <= hold:
+                s.held = True
+                s.end = "held"
+                self.event("held", f"true range to the target CoM {sim.range_to_com_m():.3f} m <= the holding "
+                                   f"distance {hold:g} m", step=k)
+                return
             if sim.range_to_com_m() < cfg.collision_radius_m:
                 s.end = "collision"
                 self.event("collision", f"true range to the target CoM {sim.range_to_com_m():.3f} m", step=k)
@@ -802,6 +839,11 @@ class PilServer:
         self.summary.steps = k + 1
         if self.record is not None:
             extra = {"nav_attempts": attempts, "round_trip_ms": rtt_ms}
+            if self.planar and "chaser_angle_rad" in self.record.extra_columns:
+                att = result.attitude_before if result is not None else self.sim.chaser_attitude()
+                extra.update(chaser_angle_rad=float(att[0]), chaser_rate_rad_s=float(att[1]),
+                             meas_chaser_angle_rad=2.0 * math.atan2(meas.chaser_q_lvlh[3], meas.chaser_q_lvlh[0]),
+                             torque_z_nm=result.torque_nm if result is not None else 0.0)
             if margins is not None and "safety_corridor_m" in self.record.extra_columns:
                 extra.update(safety_corridor_m=margins["corridor_m"], safety_axial_m=margins["axial_m"],
                              safety_dock_cone_m=margins["dock_cone_m"], safety_speed_inf_mps=margins["speed_inf_mps"],

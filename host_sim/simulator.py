@@ -10,6 +10,12 @@ Truth models (`truth=`):
   dv = sum_i pulse_i * F / m * axis_i: the flight software's own prediction model.
 - "nonlinear": target and chaser in ECI under two-body + J2 (+ J3, J4 optional) + drag
   (host_sim.dynamics), reported in the target's LVLH frame.
+- "planar": an air-bearing table (a scenario with dynamics = "planar"; Dong, Ghiglino et al.'s eq. 4):
+  the chaser translates under its thrusters alone (CW with n = 0, in the frame that moves with the
+  target's centre of mass) and turns about z under the torque it is commanded, I theta'' = tau, held
+  from the burn start to the period's end. It is the only truth of a planar scenario: asked for "cw"
+  or "nonlinear" there (the exact reference, the full model), a Simulator flies "planar", which is
+  both.
 
 Time line of one period [t, t + Ts]: coast for the control delay, then all pulses start together;
 each thruster pushes (1 + w_i/100) F along its LVLH axis for its pulse width (finite burn), or the
@@ -34,12 +40,12 @@ from . import constants as k
 from .attitude import TargetAttitude, TargetState
 from .cw import cw_forced_response, cw_stm
 from .dynamics import ForceModel, PairPropagator, Tolerances
-from .frames import eci_to_lvlh, lvlh_basis, lvlh_to_eci
+from .frames import eci_to_lvlh, lvlh_basis, lvlh_to_eci, quaternion_about_z
 from .noise import ThrustAmplitudeError
 from .scenario import Scenario, load
 from .thrusters import drop_below_mib, lvlh_delta_v, validate_pulses
 
-TRUTH_MODELS = ("cw", "nonlinear")
+TRUTH_MODELS = ("cw", "nonlinear", "planar")
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,9 @@ class Measurement:
     velocity_lvlh_mps: np.ndarray
     q_lvlh_body: np.ndarray       # target attitude, (w, x, y, z), LVLH <- body
     omega_body_rad_s: np.ndarray  # target body rate relative to LVLH, body axes
+    # The chaser's own attitude (w, x, y, z), LVLH <- chaser body, and body rate: planar truth only.
+    chaser_q_lvlh: np.ndarray | None = None
+    chaser_omega_rad_s: np.ndarray | None = None
 
     @property
     def state(self) -> np.ndarray:
@@ -84,6 +93,11 @@ class StepResult:
     # the LVLH states there (M x 6).
     path_t_s: np.ndarray = None
     path_lvlh: np.ndarray = None
+    # Planar truth: the torque about z held from the burn start to the period end [N m], and the
+    # chaser's [angle (rad), rate (rad/s)] at the start and the end of the period.
+    torque_nm: float = 0.0
+    attitude_before: np.ndarray = None
+    attitude_after: np.ndarray = None
 
 
 class Simulator:
@@ -109,6 +123,12 @@ class Simulator:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
         s = self.scenario
+        if truth == "planar" and not s.is_planar:
+            raise ValueError(f"truth 'planar' needs a planar scenario (dynamics = \"planar\"); {s.name} is orbital")
+        if s.is_planar:
+            if cw_mean_motion_rad_s is not None:
+                raise ValueError(f"{s.name} is planar: there is no mean motion to override")
+            truth = "planar"  # its only truth: exact and full model at once
         self.truth = truth
         self.seed = int(seed)
         self.impulsive = bool(impulsive)
@@ -118,7 +138,9 @@ class Simulator:
         self.force_model = ForceModel(j2=bool(j2) and nonlinear, j3_j4=bool(j3_j4) and nonlinear,
                                       drag=bool(drag) and nonlinear,
                                       atmosphere_rotation=bool(atmosphere_rotation))
-        if cw_mean_motion_rad_s is not None:
+        if truth == "planar":
+            self._n = 0.0
+        elif cw_mean_motion_rad_s is not None:
             if nonlinear:
                 raise ValueError("cw_mean_motion_rad_s applies to truth='cw' only")
             n = float(cw_mean_motion_rad_s)
@@ -128,8 +150,10 @@ class Simulator:
         else:
             self._n = s.orbit.mean_motion_rad_s
 
-        thrust_seq, sensor_seq = np.random.SeedSequence(self.seed).spawn(2)
+        # The children are keyed by their index: the attitude sensor's stream leaves the others as they were.
+        thrust_seq, sensor_seq, attitude_seq = np.random.SeedSequence(self.seed).spawn(3)
         self._sensor_rng = np.random.default_rng(sensor_seq)
+        self._attitude_rng = np.random.default_rng(attitude_seq)
         self._thrust_error = (ThrustAmplitudeError(s.thrust_error, 6, np.random.default_rng(thrust_seq))
                               if self.thrust_noise else None)
         self._attitude = TargetAttitude(math.radians(s.target.initial_angle_deg),
@@ -145,6 +169,9 @@ class Simulator:
             self._y = np.concatenate((r_t, v_t, r_c - r_t, v_c - v_t))
         else:
             self._x = x0
+        # Planar truth: the chaser's [angle about z (rad), rate (rad/s)] on the table.
+        self._chaser_att = (np.array([math.radians(s.planar.chaser_table[2]), math.radians(s.planar.chaser_table[5])])
+                            if truth == "planar" else None)
 
     # ---- state ------------------------------------------------------------------------------
     @property
@@ -173,9 +200,13 @@ class Simulator:
 
     def truth_lvlh(self) -> np.ndarray:
         """True chaser state [rho (m); rho_dot (m/s)] in the target LVLH frame."""
-        if self.truth == "cw":
+        if self.truth in ("cw", "planar"):
             return self._x.copy()
         return self._lvlh_from_pair(self._y)
+
+    def chaser_attitude(self) -> np.ndarray | None:
+        """Planar truth: the chaser's true [angle about z (rad), rate (rad/s)]; None otherwise."""
+        return None if self._chaser_att is None else self._chaser_att.copy()
 
     def eci_state(self) -> dict[str, np.ndarray]:
         """ECI position [m] and velocity [m/s] of target and chaser (nonlinear truth only)."""
@@ -213,9 +244,18 @@ class Simulator:
                 sigma = np.array([sens.sigma_position_m] * 3 + [sens.sigma_velocity_mps] * 3)
                 x = x + sigma * self._sensor_rng.standard_normal(6)
             att = self.target_state()
+            chaser_q = chaser_w = None
+            if self._chaser_att is not None:
+                angle, rate = self._chaser_att
+                if self.sensor_noise:
+                    pl = self.scenario.planar
+                    angle += math.radians(pl.sigma_angle_deg) * self._attitude_rng.standard_normal()
+                    rate += math.radians(pl.sigma_rate_deg_s) * self._attitude_rng.standard_normal()
+                chaser_q, chaser_w = _frozen(quaternion_about_z(angle)), _frozen(np.array([0.0, 0.0, rate]))
             self._measurement = Measurement(step=self._step, t_s=self._t, position_lvlh_m=_frozen(x[0:3]),
                                             velocity_lvlh_mps=_frozen(x[3:6]), q_lvlh_body=_frozen(att.q_lvlh_body),
-                                            omega_body_rad_s=_frozen(att.omega_body_rad_s))
+                                            omega_body_rad_s=_frozen(att.omega_body_rad_s),
+                                            chaser_q_lvlh=chaser_q, chaser_omega_rad_s=chaser_w)
         return self._measurement
 
     def record_meta(self) -> dict:
@@ -224,15 +264,22 @@ class Simulator:
                 "options": self.options}
 
     # ---- actuation --------------------------------------------------------------------------
-    def apply_command(self, pulse_widths_s, period_s: float, delay_s: float = 0.0) -> StepResult:
+    def apply_command(self, pulse_widths_s, period_s: float, delay_s: float = 0.0, torque_nm: float = 0.0) -> StepResult:
         """Fire the thrusters and advance the truth by one control period.
 
         pulse_widths_s: 6 pulse widths [s] for +x, -x, +y, -y, +z, -z; period_s: control period
-        Ts [s]; delay_s: control delay [s] from the period start to the burn start, 0 <= delay <= Ts.
-        Invalid input raises ValueError and leaves the simulator unchanged."""
+        Ts [s]; delay_s: control delay [s] from the period start to the burn start, 0 <= delay <= Ts;
+        torque_nm: planar truth, the torque about z held from the burn start to the period end (within
+        the scenario's torque_max_nm). Invalid input raises ValueError and leaves the simulator unchanged."""
         pulses = validate_pulses(pulse_widths_s)
         period = float(period_s)
         delay = float(delay_s)
+        torque = float(torque_nm)
+        if torque != 0.0 and self._chaser_att is None:
+            raise ValueError("torque_nm applies to the planar truth only")
+        if self._chaser_att is not None and not (math.isfinite(torque) and
+                                                 abs(torque) <= self.scenario.planar.torque_max_nm * (1.0 + 1e-9)):
+            raise ValueError(f"torque_nm must be finite and within +-{self.scenario.planar.torque_max_nm} N m, got {torque_nm!r}")
         if not (math.isfinite(period) and period > 0.0):
             raise ValueError(f"period_s must be a finite number > 0, got {period_s!r}")
         if not (math.isfinite(delay) and 0.0 <= delay <= period):
@@ -257,7 +304,7 @@ class Simulator:
             dv_lvlh = lvlh_delta_v(dv_thruster)
             before = self.truth_lvlh()
             path = _PathSampler(self.path_sample_s)
-            if self.truth == "cw":
+            if self.truth in ("cw", "planar"):  # planar: the CW model with n = 0
                 new_state = self._cw_period(self._x, period, delay, applied, force / mass, dv_lvlh, path)
                 after = new_state
             else:
@@ -272,7 +319,17 @@ class Simulator:
                 gm.rng.bit_generator.state = rng_state
             raise
 
-        if self.truth == "cw":
+        att_before = att_after = None
+        if self._chaser_att is not None:  # theta'' = tau / I from the burn start on
+            att_before = self._chaser_att.copy()
+            angle, rate = att_before
+            burn = period - delay
+            alpha = torque / self.scenario.planar.chaser_inertia_kgm2
+            angle += rate * period + 0.5 * alpha * burn * burn
+            rate += alpha * burn
+            att_after = np.array([angle, rate])
+            self._chaser_att = att_after
+        if self.truth in ("cw", "planar"):
             self._x = new_state
         else:
             self._y = new_state
@@ -280,7 +337,8 @@ class Simulator:
                             delay_s=delay, pulse_commanded_s=pulses, pulse_applied_s=applied, dropped_mib=dropped,
                             truncated=truncated, thrust_error_percent=w, force_n=force,
                             dv_thruster_mps=dv_thruster, dv_lvlh_mps=dv_lvlh, truth_before=before,
-                            truth_after=after, path_t_s=path_t, path_lvlh=path_x)
+                            truth_after=after, path_t_s=path_t, path_lvlh=path_x, torque_nm=torque,
+                            attitude_before=att_before, attitude_after=att_after)
         self._t += period
         self._step += 1
         self._measurement = None

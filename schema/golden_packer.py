@@ -70,6 +70,12 @@ MESSAGES = [
     ("obstacle_status", 17, "flight", 12, [
         ("step", "I", 7), ("received", "H", 3), ("held", "H", 2), ("capacity", "H", 4), ("reserved", "H", 0),
         ("dropped_total", "I", 1), ("rejected_total", "I", 2), ("held_id", "8I", [9, 5] + [0] * 6)]),
+    ("chaser_attitude", 18, "host", 13, [
+        ("step", "I", 7), ("reserved", "I", 0), ("t_s", "d", 14.0),
+        ("q_lvlh_chaser", "4d", [0.0, 0.0, 0.0, 1.0]), ("omega_chaser_rad_s", "3d", [0.0, 0.0, -0.0125])]),
+    ("torque", 19, "flight", 14, [
+        ("step", "I", 7), ("reserved", "I", 0), ("torque_body_nm", "3d", [0.0, 0.0, -0.0043]),
+        ("torque_max_nm", "d", 0.0225)]),
     ("config", 10, "flight", 2, [
         ("mass_kg", "d", 20.0), ("thrust_n", "d", 1.0), ("min_impulse_bit_s", "d", 0.01),
         ("horizon", "3H", [30, 15, 12]), ("status", "B", 0), ("pinned", "B", 2),

@@ -58,11 +58,15 @@ class InProcessLink:
     def put(self, kind: str, message) -> None:
         if kind == "obstacles":
             self.app.handle_obstacles(msg.encode(message))
+        elif kind == "chaser_attitude":
+            self.app.handle_chaser_attitude(msg.encode(message))
         elif kind == "nav":
             cmd = self.app.handle_nav(msg.encode(message))
             if cmd is not None:
                 if (status := self.app.take_obstacle_status()) is not None:  # before the cmd, as on the link
                     self._arrive(status)
+                if (torque := self.app.torque_for(message.step)) is not None:
+                    self._arrive(torque)
                 self._arrive(cmd)
                 self.last_step = message.step
                 self.answered += 1
@@ -90,8 +94,10 @@ def flight_options(sim: Simulator, settings: GuidanceSettings, run_id: str) -> l
     """The options run_pil gives the flight executable (but the link's): the run id, the error model
     of this run where the host passes one, then the study's guidance settings."""
     error_model = getattr(pil_module, "error_model_args", None)
+    truth = getattr(pil_module, "truth_args", None)
     return ["--run", run_id, *(error_model(sim) if error_model else []),
-            *(["--obstacles", "on"] if sim.scenario.obstacles else []), *settings.flight_args()]
+            *(["--obstacles", "on"] if sim.scenario.obstacles else []), *(truth(sim) if truth else []),
+            *settings.flight_args()]
 
 
 def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int = 0, truth: str = "cw",
@@ -108,12 +114,13 @@ def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int 
     options = flight_options(sim, settings, cfg.run_id)
     app = flight_sw.FlightApp(options)
     record_meta = dict(sim.record_meta())
-    record_meta.update(run_id=cfg.run_id, flight_command=["in-process", *options], truth=truth,
+    record_meta.update(run_id=cfg.run_id, flight_command=["in-process", *options], truth=sim.truth,
                        lockstep=cfg.lockstep, delay_model=cfg.delay_model, zenoh_mode="in-process")
     record_meta.update(meta or {})
     run_dir = Path(run_dir)
     # the per-step columns the server fills (flight telemetry; a safety monitor's margins where it has one)
-    columns = FLIGHT_COLUMNS + tuple(getattr(server_module, "SAFETY_COLUMNS", ()))
+    columns = FLIGHT_COLUMNS + tuple(getattr(server_module, "SAFETY_COLUMNS", ())) + (
+        tuple(getattr(server_module, "PLANAR_COLUMNS", ())) if getattr(sim.scenario, "is_planar", False) else ())
     recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=columns)
     server = PilServer(sim, cfg, record=recorder)
     server.link = InProcessLink(app)

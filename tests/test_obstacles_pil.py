@@ -7,6 +7,7 @@ the chaser senses by the obstacles message, judged on the truth by the safety mo
   burns): docks, every obstacle's clearance >= 1 on the true path.
 """
 import dataclasses
+from pathlib import Path
 
 import flight_sw as fsw
 import pytest
@@ -81,3 +82,20 @@ def test_the_in_process_path_flies_the_obstacles_as_the_executable_does(tmp_path
     assert inproc.dv_total_mps == native.dv_total_mps
     assert inproc.safety["figures"]["obstacles"] == native.safety["figures"]["obstacles"]
     assert inproc.obstacle_status == native.obstacle_status
+
+
+@pytest.mark.parametrize("name, expect", [
+    # (scenario file, the in-process benches' figures: end time [s], delta-v [m/s])
+    ("dong_3d_obstacles.toml", (3060.0, 3.6987)),
+    ("weiss_geo_obstacle.toml", (7800.0, 14.2145)),
+])
+def test_the_papers_rendezvous_to_a_holding_distance_through_the_harness(tmp_path, name, expect):
+    """Dong et al.'s 3-D and Weiss et al.'s GEO scenarios as scenario files: the run ends "held" at the
+    holding distance, round the obstacles, with the figures the in-process benches print (CW, ideal)."""
+    path = Path(__file__).resolve().parent.parent / "bench" / "scenarios" / name
+    summary, _ = run_pil(scenario.load(path), truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True,
+                         config=ServerConfig(delay_model="none"), run_dir=tmp_path / "run")
+    assert summary.end == "held" and summary.held and not summary.docked
+    assert summary.safety["verdict"] == "safe", summary.safety["episodes"]
+    assert min(o["min_clearance"] for o in summary.safety["figures"]["obstacles"].values()) >= 1.0
+    assert summary.t_s == pytest.approx(expect[0]) and summary.dv_total_mps == pytest.approx(expect[1], abs=5e-4)

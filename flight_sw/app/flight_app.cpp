@@ -182,6 +182,8 @@ void FlightApp::create_law() {
   lc.n_params = static_cast<uint32_t>(cfg_.law_params.size());
   lc.params = cfg_.law_params.empty() ? nullptr : cfg_.law_params.data();
   lc.native = law_ == guidance::mpc_law() ? &cfg_.guidance : nullptr;
+  lc.chaser_inertia_kgm2 = cfg_.guidance.attitude.inertia_kgm2;
+  lc.torque_max_nm = cfg_.guidance.attitude.torque_max_nm;
   char err[256] = "";
   law_state_ = law_->create(&lc, err, sizeof err);
   if (!law_state_) throw std::invalid_argument(std::string("guidance law '") + law_name() + "': " + (*err ? err : "create failed"));
@@ -337,6 +339,12 @@ LawFault FlightApp::step_law(const rvd_nav_input& in, double budget_s, double ha
   const double dv_max = cfg_.guidance.phase(static_cast<guidance::Phase>(o.phase)).u_max_mps;
   for (double v : o.dv_lvlh_mps)
     if (std::abs(v) > dv_max * (1.0 + 1e-12)) return LawFault::OutOfLimit;
+  if (in.chaser_attitude_fresh) {
+    for (double v : o.torque_body_nm) {
+      if (!std::isfinite(v)) return LawFault::NotFinite;
+      if (std::abs(v) > cfg_.guidance.attitude.torque_max_nm * (1.0 + 1e-12)) return LawFault::OutOfLimit;
+    }
+  }
   // Late: the command is not used, unless the law itself saw its budget run out and answered with
   // its own deadline fallback (a plan computed before, or zero), as the MPC does.
   const bool own_fallback = o.solver_status == RVD_SOLVER_TIME_LIMIT &&
@@ -432,6 +440,7 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
     log_ = PhaseLog{};
     overruns_ = 0;
     last_cmd_.reset();
+    last_torque_.reset();
   } else if (!last_cmd_ || nav.step > last_cmd_->step + static_cast<uint64_t>(cfg_.max_step_ahead)) {
     ++dropped_.future;  // nothing started yet, or far beyond the next step: never adopted
     return std::nullopt;
@@ -494,6 +503,12 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   li.valid = est.update == nav::NavUpdate::Invalid ? 0 : 1;
   const bool obstacles_fresh = have_obstacles_;
   if (obstacles_fresh) put_obstacles(li);
+  if (have_attitude_) {  // the chaser's own attitude (planar truth): this step commands a torque
+    li.chaser_attitude_fresh = 1;
+    for (int i = 0; i < 4; ++i) li.q_lvlh_chaser[i] = pending_attitude_.q_lvlh_chaser[i];
+    for (int i = 0; i < 3; ++i) li.omega_chaser_rad_s[i] = pending_attitude_.omega_chaser_rad_s[i];
+    have_attitude_ = false;
+  }
 
   // The law's step, bracketed by the instruction counters (step_law), under the deadline: it gets
   // what the filter left of the budget, and a step still running at the end of the period is stopped.
@@ -520,6 +535,13 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   }
   last_fault_ = fault;
   if (obstacles_fresh) note_obstacles_held(li);
+  if (li.chaser_attitude_fresh) {  // a faulty step commands no torque either
+    msg::Torque tq;
+    tq.step = nav.step;
+    for (int i = 0; i < 3; ++i) tq.torque_body_nm[i] = fault == LawFault::None ? law_out_.torque_body_nm[i] : 0.0;
+    tq.torque_max_nm = cfg_.guidance.attitude.torque_max_nm;
+    last_torque_ = tq;
+  }
   phase_ = phase;
   const guidance::PhaseParams& pp = cfg_.guidance.phase(phase);
   // A pulse never outlasts its period (a law on a vehicle too weak for its delta-v limit).
@@ -589,6 +611,21 @@ void FlightApp::accept_obstacles(const msg::Obstacles& m) {
   }
   pending_obstacles_ = m;
   have_obstacles_ = true;
+}
+
+void FlightApp::receive_chaser_attitude(const uint8_t* data, size_t size) {
+  msg::ChaserAttitude m;
+  const msg::Error e = msg::receive(auth_, data, size, m);
+  if (e != msg::Error::None) {
+    note_drop("chaser_attitude", e, size);
+    return;
+  }
+  accept_chaser_attitude(m);
+}
+
+void FlightApp::accept_chaser_attitude(const msg::ChaserAttitude& m) {
+  pending_attitude_ = m;
+  have_attitude_ = true;
 }
 
 void FlightApp::put_obstacles(rvd_nav_input& li) const {
@@ -686,6 +723,8 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
   session_->declare_subscriber(key("bye"), [this](const link::Sample& s) { receive_bye(s.payload, s.size); });
   session_->declare_subscriber(key("obstacles"), [this](const link::Sample& s) { receive_obstacles(s.payload, s.size); });
   session_->declare_subscriber(key("config"), [this](const link::Sample& s) { receive_config(s.payload, s.size); });
+  session_->declare_subscriber(key("chaser_attitude"),
+                               [this](const link::Sample& s) { receive_chaser_attitude(s.payload, s.size); });
   link::LinkStatus st = session_->open();
   note("connecting to %s: %s%s%s", cfg_.endpoint.c_str(), link::to_string(st),
        st == link::LinkStatus::Ok ? "" : ": ", st == link::LinkStatus::Ok ? "" : session_->last_error().c_str());
@@ -720,6 +759,7 @@ ExitReason FlightApp::run(const std::atomic<bool>& stop) {
       t_last_nav = Clock::now();
       if (auto cmd = handle_nav(*nav)) {
         if (take_obstacle_status_due()) publish_msg("obstacle_status", obstacle_status());
+        if (auto tq = torque_for(cmd->step)) publish_msg("torque", *tq);
         publish_msg("cmd", *cmd);
         if (auto lm = law_message()) publish_msg("law", *lm);
         if (++answered % static_cast<uint32_t>(std::max(cfg_.telemetry_every, 1)) == 0)

@@ -156,6 +156,15 @@ class FlightApp {
   void receive_obstacles(const uint8_t* data, size_t size);
   void accept_obstacles(const msg::Obstacles& m);  // an authentic, decoded one (the in-process path)
   msg::ObstacleStatus obstacle_status() const;
+  // A chaser_attitude message (the planar truth): checked like a nav, given to the law with the next
+  // nav; the torque the law commands then goes out before that step's cmd (torque_for()).
+  void receive_chaser_attitude(const uint8_t* data, size_t size);
+  void accept_chaser_attitude(const msg::ChaserAttitude& m);  // an authentic, decoded one (the in-process path)
+  // The torque message of step k, when that step had the chaser's attitude (also for a resent nav).
+  std::optional<msg::Torque> torque_for(uint32_t step) const {
+    if (last_torque_ && last_torque_->step == step) return last_torque_;
+    return std::nullopt;
+  }
   void receive_config(const uint8_t* data, size_t size);
   // The host's vehicle and guidance settings: rebuilds the law with them (the command line wins for
   // what it sets) and returns the echo, what the flight software now uses (status 1 and the reason
@@ -221,6 +230,9 @@ class FlightApp {
   void put_obstacles(rvd_nav_input& li) const;
   void note_obstacles_held(const rvd_nav_input& li);
   msg::ObstacleStatus obstacles_held_{};
+  msg::ChaserAttitude pending_attitude_{};
+  bool have_attitude_ = false;
+  std::optional<msg::Torque> last_torque_;
   InputCounters dropped_;
   uint32_t drops_noted_ = 0;
   uint32_t overruns_ = 0;

@@ -200,6 +200,32 @@ std::map<std::string, Param> named_params() {
   d("hyperplane_rate_rad_s", [](AppConfig& c) -> double& { return c.guidance.hyperplane_rate_rad_s; });
   d("hyperplane_active_range_m", [](AppConfig& c) -> double& { return c.guidance.hyperplane_active_range_m; });
   d("keepout_rate_cap_factor", [](AppConfig& c) -> double& { return c.guidance.keepout_rate_cap_factor; });
+  m["obstacle_method"] = choice<rvd::guidance::ObstacleMethod>(
+      [](AppConfig& c) -> rvd::guidance::ObstacleMethod& { return c.guidance.obstacle_method; },
+      {"direct_linearization", "rotating_hyperplane"});
+  m["obstacle_prediction"] = choice<rvd::guidance::ObstaclePrediction>(
+      [](AppConfig& c) -> rvd::guidance::ObstaclePrediction& { return c.guidance.obstacle_prediction; },
+      {"constant_velocity", "natural_motion"});
+  m["relative_motion"] = choice<rvd::guidance::RelativeMotion>(
+      [](AppConfig& c) -> rvd::guidance::RelativeMotion& { return c.guidance.relative_motion; },
+      {"clohessy_wiltshire", "double_integrator"});
+  d("holding_radius_m", [](AppConfig& c) -> double& { return c.guidance.holding_radius_m; });
+  d("holding_radius_min_m", [](AppConfig& c) -> double& { return c.guidance.holding_radius_min_m; });
+  d("holding_shrink", [](AppConfig& c) -> double& { return c.guidance.holding_shrink; });
+  d("holding_tolerance_m", [](AppConfig& c) -> double& { return c.guidance.holding_tolerance_m; });
+  d("holding_attitude_tolerance_deg", [](AppConfig& c) -> double& { return c.guidance.holding_attitude_tolerance_deg; });
+  m["holding_phases"] = integer([](AppConfig& c) -> int& { return c.guidance.holding_phases; });
+  d("entry_cone_half_angle_deg", [](AppConfig& c) -> double& { return c.guidance.entry_cone_half_angle_deg; });
+  d("entry_cone_range_m", [](AppConfig& c) -> double& { return c.guidance.entry_cone_range_m; });
+  d("entry_cone_penalty", [](AppConfig& c) -> double& { return c.guidance.entry_cone_penalty; });
+  m["entry_cone_phases"] = integer([](AppConfig& c) -> int& { return c.guidance.entry_cone_phases; });
+  d("attitude.inertia_kgm2", [](AppConfig& c) -> double& { return c.guidance.attitude.inertia_kgm2; });
+  d("attitude.torque_max_nm", [](AppConfig& c) -> double& { return c.guidance.attitude.torque_max_nm; });
+  d("attitude.Q_angle", [](AppConfig& c) -> double& { return c.guidance.attitude.Q_angle; });
+  d("attitude.Q_rate", [](AppConfig& c) -> double& { return c.guidance.attitude.Q_rate; });
+  d("attitude.R_torque", [](AppConfig& c) -> double& { return c.guidance.attitude.R_torque; });
+  d("max_range_m", [](AppConfig& c) -> double& { return c.guidance.max_range_m; });
+  d("max_speed_mps", [](AppConfig& c) -> double& { return c.guidance.max_speed_mps; });
   d("port_body_x_m", [](AppConfig& c) -> double& { return c.guidance.port_body_m.x(); });
   d("port_body_y_m", [](AppConfig& c) -> double& { return c.guidance.port_body_m.y(); });
   d("port_body_z_m", [](AppConfig& c) -> double& { return c.guidance.port_body_m.z(); });
@@ -248,6 +274,17 @@ std::map<std::string, Param> named_params() {
     d(p + ".lambda", [pick](AppConfig& c) -> double& { return pick(c).lambda; });
     d(p + ".los_half_angle_deg", [pick](AppConfig& c) -> double& { return pick(c).los_half_angle_deg; });
     d(p + ".u_max_mps", [pick](AppConfig& c) -> double& { return pick(c).u_max_mps; });
+  }
+  // phases.NAME: one value for all three phases (a scenario that flies one MPC throughout says so in one
+  // setting: the config message carries 512 bytes of settings). Reads back the rendezvous value.
+  for (const char* name : {"N", "Ts_s", "Q", "R", "terminal_weight", "lambda", "los_half_angle_deg", "u_max_mps"}) {
+    const Param r = m[std::string("rendezvous.") + name], a = m[std::string("approach.") + name],
+                d3 = m[std::string("docking.") + name];
+    m[std::string("phases.") + name] = {r.get, [r, a, d3](AppConfig& c, const std::string& v) {
+                                          r.set(c, v);
+                                          a.set(c, v);
+                                          d3.set(c, v);
+                                        }};
   }
   return m;
 }

@@ -20,8 +20,13 @@ Matrix6d cw_system_matrix(double n) {
 }
 
 Matrix6d cw_stm(double n, double t) {
-  const double nt = n * t, s = std::sin(nt), c = std::cos(nt);
   Matrix6d P = Matrix6d::Zero();
+  if (n == 0.0) {  // no orbit: the limit n -> 0, a double integrator
+    P.setIdentity();
+    P.topRightCorner<3, 3>() = t * Eigen::Matrix3d::Identity();
+    return P;
+  }
+  const double nt = n * t, s = std::sin(nt), c = std::cos(nt);
   // position <- position
   P(0, 0) = 4.0 - 3.0 * c;
   P(1, 0) = 6.0 * (s - nt);

@@ -19,7 +19,8 @@ constexpr double kEarthRadius_m = 6378136.3;
 // Mean motion of a circular orbit at this altitude above the equatorial radius [rad/s].
 double mean_motion_rad_s(double altitude_m, double mu_m3_s2 = kEarthMu_m3_s2, double earth_radius_m = kEarthRadius_m);
 
-// Closed-form CW state transition matrix Phi(t) = exp(Ac t) (no matrix exponential at run time).
+// Closed-form CW state transition matrix Phi(t) = exp(Ac t) (no matrix exponential at run time);
+// n = 0 gives the double integrator (no orbit).
 Matrix6d cw_stm(double n_rad_s, double t_s);
 
 // The continuous CW system matrix Ac (for tests and documentation; the guidance never integrates it).

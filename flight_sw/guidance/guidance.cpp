@@ -27,7 +27,8 @@ const char* to_string(StepStatus s) {
   return "unknown";
 }
 
-Guidance::Guidance(const GuidanceParams& params) : params_(params), x0_(solver::Vector::Zero(6)) {
+Guidance::Guidance(const GuidanceParams& params)
+    : params_(params), x0_(solver::Vector::Zero(6)), holding_(params.holding()) {
   const std::string err = params_.validate();
   if (!err.empty()) throw std::invalid_argument("GuidanceParams: " + err);
   int longest = 0;
@@ -41,7 +42,7 @@ Guidance::Guidance(const GuidanceParams& params) : params_(params), x0_(solver::
   }
   plan_.assign(longest, Eigen::Vector3d::Zero());
   predicted_.assign(longest + 1, Eigen::Vector3d::Zero());
-  if (params_.obstacle_capacity > 0)
+  if (params_.obstacle_capacity > 0 || params_.holding_radius_m > 0.0)
     for (auto* set : {&qps_, &recovery_qps_})
       for (auto& qp : *set) qp->set_obstacles(&obstacles_, 0.0, predicted_.data());
 }
@@ -80,6 +81,7 @@ const solver::FastMpcSolver& Guidance::solver(Phase p, bool recovery) const {
 void Guidance::reset(Phase start) {
   phase_ = start;
   plan_len_ = plan_next_ = 0;
+  holding_.reset();
   for (auto& s : solvers_) s->reset_warm_start();
   for (auto& s : recovery_solvers_) s->reset_warm_start();
 }
@@ -156,7 +158,8 @@ bool Guidance::solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Ve
     info.status = solver::Status::TimeLimit;
     return false;
   }
-  if (params_.obstacle_capacity > 0) qp.set_obstacles(&obstacles_, t_s, predicted_.data());
+  if (params_.obstacle_capacity > 0 || params_.holding_radius_m > 0.0) qp.set_obstacles(&obstacles_, t_s, predicted_.data());
+  qp.set_holding_radius(holding_.radius());
   qp.build(x, target, quality);
   x0_ = x;
   sol.settings().time_limit_us = budget_left_us;
@@ -200,6 +203,7 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
     cmd.range_m = x.head<3>().norm();
     cmd.port_distance_m = (x.head<3>() - target.q_lvlh_body * params_.port_body_m).norm();
 
+    holding_.observe(x.head<3>(), target.q_lvlh_body, params_.port_body_m, nav.chaser_attitude_error_rad);
     // Algorithm 1: the switching conditions are checked on the newest state; a state can pass several.
     const Phase before = phase_;
     if (phase_ == Phase::Rendezvous && ready_for_approach(x, target, nav.quality)) phase_ = Phase::Approach;
@@ -219,7 +223,7 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
         return left > 0.0 ? left : -1.0;
       };
       cmd.solved = left_us() >= 0.0;
-      if (params_.obstacle_capacity > 0) predict_positions(*qps_[k], x);  // before a new plan replaces it
+      if (params_.obstacle_capacity > 0 || params_.holding_in(phase_)) predict_positions(*qps_[k], x);  // before a new plan replaces it
       bool usable = solve_into_plan(*qps_[k], *solvers_[k], x, target, nav.quality, nav.t_s, left_us(), cmd.solver);
       if (usable) {
         cmd.status = StepStatus::Ok;

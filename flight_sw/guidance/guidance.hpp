@@ -8,6 +8,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -39,6 +40,9 @@ struct NavInput {
   Eigen::Quaterniond q_lvlh_body = Eigen::Quaterniond::Identity();  // target attitude, LVLH <- body
   Eigen::Vector3d omega_body_rad_s = Eigen::Vector3d::Zero();       // target rate relative to LVLH, body axes
   EstimateQuality quality;  // of x_lvlh and of the thrusters (the navigation filter's): margins, allocation
+  // The chaser's angle from its docking attitude (holding.hpp, docking_attitude_error_rad); NaN when its
+  // attitude is not sensed: the holding radius then shrinks on the position condition alone.
+  double chaser_attitude_error_rad = std::numeric_limits<double>::quiet_NaN();
 };
 
 struct Command {
@@ -87,6 +91,7 @@ class Guidance {
   // rest counted as dropped, unusable entries as rejected. Allocates nothing.
   void set_obstacles(const Obstacle* list, int n, double t_s, const Eigen::Vector3d& chaser_lvlh_m);
   const ObstacleSet& obstacles() const { return obstacles_; }
+  const HoldingRadius& holding() const { return holding_; }  // the dynamic holding radius (holding.hpp)
   void count_dropped_obstacles(uint32_t n) { obstacles_.dropped_total += n; }  // left out before they got here
 
   Phase phase() const { return phase_; }
@@ -118,6 +123,7 @@ class Guidance {
   Phase plan_phase_ = Phase::Rendezvous;
   SolveObserver* observer_ = nullptr;
   ObstacleSet obstacles_;
+  HoldingRadius holding_;
   std::vector<Eigen::Vector3d> predicted_;  // linearization points, stages 0..N (capacity: longest N + 1)
   void predict_positions(const PhaseQp& qp, const Vector6d& x);
 };

@@ -54,7 +54,27 @@ PhaseParams GuidanceParams::default_docking() {
   return p;
 }
 
-double GuidanceParams::mean_motion_rad_s() const { return guidance::mean_motion_rad_s(orbit_altitude_m); }
+double GuidanceParams::mean_motion_rad_s() const {
+  return relative_motion == RelativeMotion::DoubleIntegrator ? 0.0 : guidance::mean_motion_rad_s(orbit_altitude_m);
+}
+
+namespace {
+int phase_bit(Phase p) { return p == Phase::Rendezvous ? 1 : p == Phase::Approach ? 2 : 4; }
+}  // namespace
+
+HoldingParams GuidanceParams::holding() const {
+  HoldingParams h;
+  h.radius_m = holding_radius_m;
+  h.radius_min_m = holding_radius_min_m;
+  h.shrink = holding_shrink;
+  h.tolerance_m = holding_tolerance_m;
+  h.attitude_tolerance_rad = holding_attitude_tolerance_deg * 3.14159265358979323846 / 180.0;
+  return h;
+}
+bool GuidanceParams::holding_in(Phase p) const { return holding_radius_m > 0.0 && (holding_phases & phase_bit(p)) != 0; }
+bool GuidanceParams::entry_cone_in(Phase p) const {
+  return entry_cone_half_angle_deg > 0.0 && (entry_cone_phases & phase_bit(p)) != 0;
+}
 
 const PhaseParams& GuidanceParams::phase(Phase p) const {
   switch (p) {
@@ -117,6 +137,26 @@ std::string GuidanceParams::validate() const {
     err << "obstacle_margin_m and obstacle_penalty_quadratic must be >= 0, obstacle_penalty > 0; ";
   if (!positive(hyperplane_rate_rad_s) || !positive(hyperplane_active_range_m))
     err << "hyperplane_rate_rad_s and hyperplane_active_range_m must be > 0; ";
+  if (holding_radius_m != 0.0) {
+    if (!positive(holding_radius_m) || !nonnegative(holding_radius_min_m) || !(holding_radius_min_m <= holding_radius_m))
+      err << "holding_radius_m must be > 0 (or 0: off) and >= holding_radius_min_m >= 0; ";
+    if (!(holding_shrink > 0.0 && holding_shrink < 1.0)) err << "holding_shrink must be in (0, 1); ";
+    if (!nonnegative(holding_tolerance_m) || !nonnegative(holding_attitude_tolerance_deg))
+      err << "holding_tolerance_m and holding_attitude_tolerance_deg must be >= 0; ";
+    if (holding_phases < 1 || holding_phases > 3)
+      err << "holding_phases must be 1 (rendezvous), 2 (approach) or 3 (both): the docking phase has no stand-off row; ";
+  }
+  if (entry_cone_half_angle_deg != 0.0) {
+    if (!(entry_cone_half_angle_deg > 0.0 && entry_cone_half_angle_deg < 89.0))
+      err << "entry_cone_half_angle_deg must be in (0, 89) (or 0: off); ";
+    if (!nonnegative(entry_cone_range_m) || !positive(entry_cone_penalty))
+      err << "entry_cone_range_m must be >= 0 and entry_cone_penalty > 0; ";
+    if (entry_cone_phases < 1 || entry_cone_phases > 7) err << "entry_cone_phases must be a phase mask in 1..7; ";
+  }
+  if (attitude.inertia_kgm2 != 0.0 &&
+      (!positive(attitude.inertia_kgm2) || !positive(attitude.torque_max_nm) || !nonnegative(attitude.Q_angle) ||
+       !nonnegative(attitude.Q_rate) || !positive(attitude.R_torque)))
+    err << "attitude needs inertia_kgm2 > 0 (or 0: not controlled), torque_max_nm > 0, Q >= 0, R > 0; ";
   if (!nonnegative(max_iter_accept_residual)) err << "max_iter_accept_residual must be >= 0; ";
   if (!(margins.input_fraction >= 0.0 && margins.input_fraction < 1.0)) err << "margins.input_fraction must be in [0, 1); ";
   if (!(margins.plan_reserve_fraction >= 0.0 && margins.plan_reserve_fraction < 1.0))

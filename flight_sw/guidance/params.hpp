@@ -9,7 +9,9 @@
 #include <string>
 
 #include "flight_sw/guidance/allocation.hpp"
+#include "flight_sw/guidance/attitude.hpp"
 #include "flight_sw/guidance/cw.hpp"
+#include "flight_sw/guidance/holding.hpp"
 #include "flight_sw/guidance/obstacles.hpp"
 #include "flight_sw/solver/ocp_qp.hpp"
 
@@ -25,6 +27,10 @@ enum class TerminalWeight : uint8_t {
 enum class RendezvousObjective : uint8_t {
   Quadratic = 0,  // eq 3.2 / 3.7
   OneNorm = 1     // eq 2.10: ||Q (x - xs)||_1 + ||R u||_1 (an LP; Table 3.6)
+};
+enum class RelativeMotion : uint8_t {
+  ClohessyWiltshire = 0,  // about a target on a circular orbit (mean motion from orbit_altitude_m)
+  DoubleIntegrator = 1    // no orbit (an air-bearing table, deep space): n = 0, rho'' = u
 };
 enum class KeepoutDirection : uint8_t {
   NaturalMotion = 0,  // sec 3.1.3: shortest way when the axis is reachable within N capped steps,
@@ -96,6 +102,7 @@ struct GuidanceParams {
 
   // Orbit of the target (circular): sets the CW mean motion.
   double orbit_altitude_m = 500e3;
+  RelativeMotion relative_motion = RelativeMotion::ClohessyWiltshire;
 
   // Geometry (unstated in the dissertation; see README).
   double keepout_radius_m = 200.0;     // r1: keep-out sphere around the target CoM (rendezvous)
@@ -149,6 +156,32 @@ struct GuidanceParams {
   ObstacleMethod obstacle_method = ObstacleMethod::DirectLinearization;
   double hyperplane_rate_rad_s = 0.002;       // rotating hyperplane: turn rate of its normal (~2x the orbit rate)
   double hyperplane_active_range_m = 500.0;   // rotating hyperplane: rows only within this of the zone
+
+  // The docking corridor of Dong, Ghiglino et al. (holding.hpp). Phases as a bit mask: 1 rendezvous,
+  // 2 approach, 4 docking.
+  // Dynamic holding radius (their eq. 9): in the phases of holding_phases (rendezvous and approach
+  // only) it replaces the stand-off row (the rendezvous keep-out plane, the approach overshoot plane)
+  // by the holding circle linearized about the previous plan, and the set point by the holding
+  // position. 0 (the default): off.
+  double holding_radius_m = 0.0;
+  double holding_radius_min_m = 0.0;
+  double holding_shrink = 0.95;
+  double holding_tolerance_m = 0.0;
+  double holding_attitude_tolerance_deg = 10.0;
+  int holding_phases = 1;
+  // Two-plane entry cone at the port (their eq. 10) in the phases of entry_cone_phases, active while the
+  // chaser is within entry_cone_range_m of the port: two soft rows per stage 1..N with penalty
+  // entry_cone_penalty per metre outside (plus obstacle_penalty_quadratic per metre squared).
+  // entry_cone_half_angle_deg 0 (the default): off.
+  double entry_cone_half_angle_deg = 0.0;
+  double entry_cone_range_m = 0.0;
+  double entry_cone_penalty = 1e4;
+  int entry_cone_phases = 7;
+  // The chaser's rotation (attitude.hpp), commanded where the truth has it (the planar truth).
+  AttitudeParams attitude;
+  HoldingParams holding() const;
+  bool holding_in(Phase p) const;     // the phase plans with the holding radius
+  bool entry_cone_in(Phase p) const;  // the phase has the entry cone's rows
 
   Margins margins;
   // The thrusters burn for a finite time: the prediction models each period's delta-v as an impulse at

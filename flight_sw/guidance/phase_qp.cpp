@@ -49,7 +49,11 @@ PhaseQp::StageLayout PhaseQp::stage(int i) const {
       }
       break;
   }
-  // Obstacle rows last, so that every other block keeps its place; always soft.
+  // The entry cone and the obstacle rows last, so that every other block keeps its place; always soft.
+  if (i >= 1 && params_.entry_cone_in(phase_)) {
+    L.entry_row = row(2);
+    soft(2);
+  }
   if (i >= 1 && params_.obstacle_capacity > 0) {
     L.obstacle_row = row(2 * params_.obstacle_capacity);
     soft(2 * params_.obstacle_capacity);
@@ -189,6 +193,10 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
         soft(L.vel_row, 6, params_.recovery_speed_factor * lin, params_.recovery_speed_factor * quad);
       }
     }
+    if (L.entry_row >= 0) {  // inactive until fill_entry_cone: 0 <= 1
+      soft(L.entry_row, 2, params_.entry_cone_penalty, 2.0 * params_.obstacle_penalty_quadratic);
+      qp_.d[i].segment<2>(L.entry_row).setOnes();
+    }
     if (L.obstacle_row >= 0) {  // inactive until fill_obstacles: 0 <= 1
       soft(L.obstacle_row, 2 * params_.obstacle_capacity, params_.obstacle_penalty,
            2.0 * params_.obstacle_penalty_quadratic);
@@ -201,6 +209,7 @@ int PhaseQp::keepout_row(int i) const { return stage(i).keepout_row; }
 int PhaseQp::cone_row(int i) const { return stage(i).cone_row; }
 int PhaseQp::velocity_row(int i) const { return stage(i).vel_row; }
 int PhaseQp::obstacle_row(int i) const { return stage(i).obstacle_row; }
+int PhaseQp::entry_row(int i) const { return stage(i).entry_row; }
 
 void PhaseQp::build(const Vector6d& x0, const TargetState& target, const EstimateQuality& quality) {
   x0_ = x0;
@@ -217,7 +226,55 @@ void PhaseQp::build(const Vector6d& x0, const TargetState& target, const Estimat
     case Phase::Docking:
     case Phase::Docked: build_docking(x0, target); break;
   }
+  if (params_.entry_cone_in(phase_)) fill_entry_cone(x0, target);
   if (params_.obstacle_capacity > 0) fill_obstacles(x0);
+}
+
+// The holding circle (eq. 9) linearized about the previous plan's positions, in the stage rows of the
+// stand-off constraint: p_hat_i' rho_i >= r, with r no more than the current range (a chaser that is
+// inside is asked to get no closer, not to jump out) and grown by the estimate margin and the chord
+// margin, as the keep-out plane.
+void PhaseQp::fill_holding_rows(const Vector6d& x0, double radius_m) {
+  const double r = std::min(radius_m + params_.margins.keepout_m + estimate_margin_m(), x0.head<3>().norm());
+  keepout_radius_used_ = r;
+  keepout_normals_[0] = x0.head<3>().norm() > 1e-12 ? Eigen::Vector3d(x0.head<3>().normalized()) : Eigen::Vector3d::UnitX();
+  for (int i = 1; i <= N_; ++i) {
+    const Eigen::Vector3d about = predicted_ != nullptr ? predicted_[i] : x0.head<3>();
+    const HalfSpace h = holding_row(r, about, x0.head<3>());
+    keepout_normals_[i] = h.normal;
+    const int row = stage(i).keepout_row;
+    qp_.C[i].block<1, 3>(row, 0) = -h.normal.transpose();
+    qp_.d[i](row) = -h.bound_m;
+  }
+}
+
+// Set point: the holding position of the current radius, turning with the target over the horizon.
+void PhaseQp::fill_holding_setpoints(const TargetState& target) {
+  const Eigen::Vector3d w = omega_lvlh(target);
+  for (int i = 0; i <= N_; ++i) {
+    const Eigen::Vector3d p = holding_position(attitude_after(target, i * Ts_), params_.port_body_m, holding_radius_m_);
+    reference_[i].head<3>() = p;
+    reference_[i].tail<3>() = w.cross(p);
+  }
+}
+
+// Eq. 10 on stages 1..N with the target's predicted attitude, while the chaser is within the cone's
+// range of the port; inactive rows (0 <= 1) otherwise.
+void PhaseQp::fill_entry_cone(const Vector6d& x0, const TargetState& target) {
+  const Eigen::Vector3d port0 = target.q_lvlh_body * params_.port_body_m;
+  entry_active_ = (x0.head<3>() - port0).norm() <= params_.entry_cone_range_m;
+  const double half_angle = params_.entry_cone_half_angle_deg * kDeg;
+  for (int i = 1; i <= N_; ++i) {
+    const int row = stage(i).entry_row;
+    if (!entry_active_) {
+      qp_.C[i].block<2, 3>(row, 0).setZero();
+      qp_.d[i].segment<2>(row).setOnes();
+      continue;
+    }
+    const EntryCone c = entry_cone(attitude_after(target, i * Ts_), params_.port_body_m, half_angle);
+    qp_.C[i].block<2, 3>(row, 0) = c.rows;
+    qp_.d[i].segment<2>(row) = c.bounds.array() - estimate_margin_m();
+  }
 }
 
 // Each held obstacle, linearized on stage i about the chaser position the previous plan predicts for
@@ -337,9 +394,16 @@ double PhaseQp::rendezvous_setpoint_range_m() const {
 
 void PhaseQp::build_rendezvous(const Vector6d& x0, const TargetState& target) {
   const PhaseParams& pp = params_.rendezvous;
-  fill_setpoints(target, rendezvous_setpoint_range_m());
+  const bool holding = params_.holding_in(Phase::Rendezvous);
+  if (holding)
+    fill_holding_setpoints(target);
+  else
+    fill_setpoints(target, rendezvous_setpoint_range_m());
   for (int i = 0; i <= N_; ++i) qp_.q[i].noalias() = -qp_.Q[i] * reference_[i];
-  fill_keepout(x0, target);
+  if (holding)
+    fill_holding_rows(x0, holding_radius_m_);
+  else
+    fill_keepout(x0, target);
   if (cone_slacks_) {  // terminal cone penalty with the pyramid predicted at t_N (sec 3.4)
     const Matrix43d H = pyramid_rows_lvlh(attitude_after(target, N_ * Ts_), pp.los_half_angle_deg * kDeg);
     qp_.C[N_].block<4, 3>(stage(N_).cone_row, 0) = H;
@@ -348,14 +412,21 @@ void PhaseQp::build_rendezvous(const Vector6d& x0, const TargetState& target) {
 
 void PhaseQp::build_rendezvous_one_norm(const Vector6d& x0, const TargetState& target) {
   const PhaseParams& pp = params_.rendezvous;
-  fill_setpoints(target, rendezvous_setpoint_range_m());
+  const bool holding = params_.holding_in(Phase::Rendezvous);
+  if (holding)
+    fill_holding_setpoints(target);
+  else
+    fill_setpoints(target, rendezvous_setpoint_range_m());
   for (int i = 0; i <= N_; ++i) {
     const StageLayout L = stage(i);
     const Vector6d qe = (i < N_ ? Qw_ : Qf_).diagonal().cwiseProduct(reference_[i]);
     qp_.d[i].segment<6>(L.t_row) = qe;        //  Q x - t <=  Q xs
     qp_.d[i].segment<6>(L.t_row + 6) = -qe;   // -Q x - t <= -Q xs
   }
-  fill_keepout(x0, target);
+  if (holding)
+    fill_holding_rows(x0, holding_radius_m_);
+  else
+    fill_keepout(x0, target);
   if (cone_slacks_) {
     const Matrix43d H = pyramid_rows_lvlh(attitude_after(target, N_ * Ts_), pp.los_half_angle_deg * kDeg);
     qp_.C[N_].block<4, 3>(stage(N_).cone_row, 0) = H;
@@ -378,12 +449,16 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
   const double slowdown = 0.9 * u_max_ * (1.0 - params_.margins.input_fraction) *
                           (1.0 - params_.margins.plan_reserve_fraction) *
                           std::max(0.5, 1.0 - params_.margins.estimate_sigmas * quality_.thrust_scale_sigma);
-  fill_setpoints(target, params_.approach_stop_m + params_.approach_setpoint_offset_m);
+  const bool holding = params_.holding_in(Phase::Approach);
+  if (holding)
+    fill_holding_setpoints(target);
+  else
+    fill_setpoints(target, params_.approach_stop_m + params_.approach_setpoint_offset_m);
   for (int i = 0; i <= N_; ++i) {
     qp_.q[i].noalias() = -qp_.Q[i] * reference_[i];
     const StageLayout L = stage(i);
     const Eigen::Quaterniond q_i = attitude_after(target, i * Ts_);
-    if (L.keepout_row >= 0) {  // overshoot plane n_cone' rho >= r2 (eq 3.9)
+    if (L.keepout_row >= 0 && !holding) {  // overshoot plane n_cone' rho >= r2 (eq 3.9)
       const Eigen::Vector3d axis = q_i * Eigen::Vector3d::UnitX();
       keepout_normals_[i] = axis;
       qp_.C[i].block<1, 3>(L.keepout_row, 0) = -axis.transpose();
@@ -398,6 +473,7 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
       qp_.d[i].segment<4>(L.cone_row).setConstant(-cone_margin);
     }
   }
+  if (holding) fill_holding_rows(x0, holding_radius_m_);  // in place of the overshoot plane
 }
 
 void PhaseQp::build_docking(const Vector6d& x0, const TargetState& target) {

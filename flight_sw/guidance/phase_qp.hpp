@@ -33,6 +33,7 @@ class PhaseQp {
   // 1-norm rows, and in the recovery variant every hard state row) are listed in the QP's idxs.
   struct StageLayout {
     int box_row = -1, keepout_row = -1, cone_row = -1, t_row = -1, w_row = -1, vel_row = -1, speed_row = -1;
+    int entry_row = -1;     // first of the entry cone's 2 soft rows (stages 1..N), -1 if none
     int obstacle_row = -1;  // first of 2 x params.obstacle_capacity soft rows (stages 1..N), -1 if none
     int nu = 0, nc = 0, ns = 0;
   };
@@ -51,6 +52,10 @@ class PhaseQp {
     obstacle_t_s_ = t_s;
     predicted_ = predicted;
   }
+
+  // The holding radius the next build() plans with (params.holding_in(phase): holding.hpp); its rows are
+  // linearized about the predicted positions given to set_obstacles.
+  void set_holding_radius(double radius_m) { holding_radius_m_ = radius_m; }
 
   // Fill the QP for the chaser state x0 (LVLH) with the target as it is at the solve time; `quality`
   // says how well x0 and the thrusters are known (the margins and input bounds follow it).
@@ -78,6 +83,8 @@ class PhaseQp {
   int cone_row(int i) const;               // first of the 4 cone rows (soft or hard), -1 if none
   int velocity_row(int i) const;           // first of the 6 |v|_inf rows (docking), -1 if none
   int obstacle_row(int i) const;           // first obstacle row, -1 if none
+  int entry_row(int i) const;              // first of the entry cone's 2 rows, -1 if none
+  bool entry_cone_active() const { return entry_active_; }  // in the last build
   bool recovery() const { return recovery_; }
 
  private:
@@ -90,6 +97,9 @@ class PhaseQp {
   void fill_keepout(const Vector6d& x0, const TargetState& target);
   void fill_setpoints(const TargetState& target, double range_m);
   void fill_obstacles(const Vector6d& x0);
+  void fill_holding_rows(const Vector6d& x0, double radius_m);
+  void fill_entry_cone(const Vector6d& x0, const TargetState& target);
+  void fill_holding_setpoints(const TargetState& target);
   double rendezvous_setpoint_range_m() const;
 
   Phase phase_;
@@ -113,6 +123,8 @@ class PhaseQp {
   const ObstacleSet* obstacles_ = nullptr;
   double obstacle_t_s_ = 0.0;
   const Eigen::Vector3d* predicted_ = nullptr;
+  double holding_radius_m_ = 0.0;
+  bool entry_active_ = false;
 };
 
 // Solution of the discrete algebraic Riccati equation P = Q + A'PA - A'PB (R + B'PB)^-1 B'PA

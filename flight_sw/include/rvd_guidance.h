@@ -30,6 +30,8 @@
  *     within its budget (a later answer is discarded: zero thrust; except a law's own deadline
  *     fallback: solver_status RVD_SOLVER_TIME_LIMIT with status SHIFTED_PLAN or ZERO_THRUST), and must
  *     return finite numbers with |dv_lvlh_mps[i]| <= phase[p].dv_max_mps (else zero thrust);
+ *   - with the chaser's attitude in the nav (the planar truth), |torque_body_nm[i]| <= torque_max_nm, finite
+ *     (else zero thrust and zero torque);
  *   - a step that crashes (SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT) disables the law for the rest of
  *     the run: zero thrust from then on;
  *   - create() may allocate; it returns NULL with a reason in `error` for an unusable configuration.
@@ -44,6 +46,8 @@
 extern "C" {
 #endif
 
+/* Within a version fields are only appended to the structs below (the chaser's rotation was), so a
+ * law built against an earlier header of the same version reads and writes a prefix of them. */
 #define RVD_GUIDANCE_ABI_VERSION 1u
 
 /* Phase codes (as on the link's cmd message). */
@@ -126,6 +130,10 @@ typedef struct rvd_guidance_config {
   uint32_t reserved;         /* 0 */
   const rvd_named_value* params; /* n_params law parameters (--set law.NAME=VALUE), in the given order */
   const void* native;        /* the built-in MPC's full C++ parameters; NULL for every other law */
+  /* The chaser's rotation, where the truth has it (the planar truth of an air-bearing table; 0 otherwise):
+   * I theta'' = tau about LVLH z. A law then commands a torque with every step (rvd_guidance_output). */
+  double chaser_inertia_kgm2;  /* about z [kg m^2] */
+  double torque_max_nm;        /* |torque| per axis the harness accepts [N m] */
 } rvd_guidance_config;
 
 /* An ellipsoidal keep-out zone the chaser senses: {r : (r - c)' S (r - c) <= 1} with
@@ -164,6 +172,11 @@ typedef struct rvd_nav_input {
   uint32_t reserved3;          /* 0 */
   double obstacles_t_s;        /* simulation time of the obstacles' states [s] */
   rvd_obstacle obstacles[RVD_MAX_OBSTACLES];
+  /* The chaser's own attitude, in runs whose truth has it (the planar truth); fresh with every nav there. */
+  uint32_t chaser_attitude_fresh; /* 1: the two fields below are this step's measurement */
+  uint32_t reserved4;             /* 0 */
+  double q_lvlh_chaser[4];        /* chaser attitude, LVLH <- chaser body, (w, x, y, z); its docking axis is body +x */
+  double omega_chaser_rad_s[3];   /* chaser body rate relative to LVLH, chaser body axes [rad/s] */
 } rvd_nav_input;
 
 #define RVD_MAX_NAMED 16 /* telemetry values per step */
@@ -193,6 +206,9 @@ typedef struct rvd_guidance_output {
   uint32_t obstacles_dropped_total; /* entries left out for lack of capacity, so far in the run */
   uint32_t obstacles_rejected_total;/* entries refused (bad shape or attitude), so far in the run */
   uint32_t obstacle_held_id[RVD_MAX_OBSTACLES]; /* ids held, nearest first */
+  /* Torque on the chaser for this period (chaser body axes [N m], |each| <= config torque_max_nm), held from
+   * the burn start to the period's end; used only when the nav had the chaser's attitude. */
+  double torque_body_nm[3];
 } rvd_guidance_output;
 
 /* A law. `create` may allocate; it is called at start (from the command line's configuration) and

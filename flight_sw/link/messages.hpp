@@ -38,6 +38,8 @@ enum class Type : uint8_t {
   Bye = 5,
   Obstacles = 16,
   ObstacleStatus = 17,
+  ChaserAttitude = 18,
+  Torque = 19,
   Config = 10,
   Law = 11,
 };
@@ -130,6 +132,8 @@ inline Error peek(const uint8_t* data, std::size_t n, Type& type) {
     case 5:
     case 16:
     case 17:
+    case 18:
+    case 19:
     case 10:
     case 11:
       break;
@@ -709,6 +713,115 @@ inline Error decode(const uint8_t* data, std::size_t n, ObstacleStatus& m) {
   return Error::None;
 }
 
+// The chaser's measured attitude at nav step k (host -> flight, before nav k; runs with the planar truth).
+struct ChaserAttitude {
+  static constexpr Type kType = Type::ChaserAttitude;
+  static constexpr std::size_t kBodySize = 72;
+  static constexpr std::size_t kSize = kHeaderSize + kBodySize + kTagSize;
+  uint32_t step = 0;  // the nav step this belongs to
+  uint32_t reserved = 0;  // 0
+  double t_s = 0;  // simulation time of the measurement [s]
+  std::array<double, 4> q_lvlh_chaser{};  // chaser attitude, quaternion LVLH <- chaser body (w, x, y, z); its docking axis is body +x
+  std::array<double, 3> omega_chaser_rad_s{};  // chaser body rate relative to LVLH, chaser body axes [rad/s]
+};
+
+// Writes ChaserAttitude::kSize bytes (nonce, sequence number and tag zero: LinkAuth::seal() fills them);
+// returns the size, or 0 and `err` when it cannot.
+inline std::size_t encode(const ChaserAttitude& m, uint8_t* out, std::size_t cap, Error* err = nullptr) {
+  Error e = Error::None;
+  if (out == nullptr || cap < ChaserAttitude::kSize) e = Error::BufferTooSmall;
+  if (!std::isfinite(m.t_s)) e = Error::NonFinite;
+  for (double v : m.q_lvlh_chaser) if (!std::isfinite(v)) e = Error::NonFinite;
+  for (double v : m.omega_chaser_rad_s) if (!std::isfinite(v)) e = Error::NonFinite;
+  if (err) *err = e;
+  if (e != Error::None) return 0;
+  uint8_t* p = out;
+  wire::put_header(p, ChaserAttitude::kType, ChaserAttitude::kBodySize);
+  wire::put<uint32_t>(p, m.step);
+  wire::put<uint32_t>(p, m.reserved);
+  wire::put(p, m.t_s);
+  for (auto v : m.q_lvlh_chaser) wire::put(p, v);
+  for (auto v : m.omega_chaser_rad_s) wire::put(p, v);
+  std::memset(p, 0, kTagSize);
+  p += kTagSize;
+  return static_cast<std::size_t>(p - out);
+}
+
+// Decodes a whole chaser_attitude message; on error `m` is left unchanged. Checks the layout only:
+// a received message must pass LinkAuth::open() first (receive() does both).
+inline Error decode(const uint8_t* data, std::size_t n, ChaserAttitude& m) {
+  Type type;
+  Error e = peek(data, n, type);
+  if (e != Error::None) return e;
+  if (type != ChaserAttitude::kType) return Error::WrongType;
+  const uint8_t* h = data + 6;
+  if (wire::get<uint16_t>(h) != ChaserAttitude::kBodySize || n != ChaserAttitude::kSize) return Error::BadSize;
+  ChaserAttitude r;
+  const uint8_t* p = data + kHeaderSize;
+  r.step = wire::get<uint32_t>(p);
+  r.reserved = wire::get<uint32_t>(p);
+  r.t_s = wire::get<double>(p);
+  for (auto& v : r.q_lvlh_chaser) v = wire::get<double>(p);
+  for (auto& v : r.omega_chaser_rad_s) v = wire::get<double>(p);
+  if (!std::isfinite(r.t_s)) return Error::NonFinite;
+  for (double v : r.q_lvlh_chaser) if (!std::isfinite(v)) return Error::NonFinite;
+  for (double v : r.omega_chaser_rad_s) if (!std::isfinite(v)) return Error::NonFinite;
+  m = r;
+  return Error::None;
+}
+
+// The torque commanded for step k (flight -> host, before cmd k; answers a chaser_attitude).
+struct Torque {
+  static constexpr Type kType = Type::Torque;
+  static constexpr std::size_t kBodySize = 40;
+  static constexpr std::size_t kSize = kHeaderSize + kBodySize + kTagSize;
+  uint32_t step = 0;  // the nav step of the cmd this belongs to
+  uint32_t reserved = 0;  // 0
+  std::array<double, 3> torque_body_nm{};  // torque on the chaser, chaser body axes [N m], held from the burn start to the end of the period
+  double torque_max_nm = 0;  // the limit per axis the flight software planned with [N m]
+};
+
+// Writes Torque::kSize bytes (nonce, sequence number and tag zero: LinkAuth::seal() fills them);
+// returns the size, or 0 and `err` when it cannot.
+inline std::size_t encode(const Torque& m, uint8_t* out, std::size_t cap, Error* err = nullptr) {
+  Error e = Error::None;
+  if (out == nullptr || cap < Torque::kSize) e = Error::BufferTooSmall;
+  for (double v : m.torque_body_nm) if (!std::isfinite(v)) e = Error::NonFinite;
+  if (!std::isfinite(m.torque_max_nm)) e = Error::NonFinite;
+  if (err) *err = e;
+  if (e != Error::None) return 0;
+  uint8_t* p = out;
+  wire::put_header(p, Torque::kType, Torque::kBodySize);
+  wire::put<uint32_t>(p, m.step);
+  wire::put<uint32_t>(p, m.reserved);
+  for (auto v : m.torque_body_nm) wire::put(p, v);
+  wire::put(p, m.torque_max_nm);
+  std::memset(p, 0, kTagSize);
+  p += kTagSize;
+  return static_cast<std::size_t>(p - out);
+}
+
+// Decodes a whole torque message; on error `m` is left unchanged. Checks the layout only:
+// a received message must pass LinkAuth::open() first (receive() does both).
+inline Error decode(const uint8_t* data, std::size_t n, Torque& m) {
+  Type type;
+  Error e = peek(data, n, type);
+  if (e != Error::None) return e;
+  if (type != Torque::kType) return Error::WrongType;
+  const uint8_t* h = data + 6;
+  if (wire::get<uint16_t>(h) != Torque::kBodySize || n != Torque::kSize) return Error::BadSize;
+  Torque r;
+  const uint8_t* p = data + kHeaderSize;
+  r.step = wire::get<uint32_t>(p);
+  r.reserved = wire::get<uint32_t>(p);
+  for (auto& v : r.torque_body_nm) v = wire::get<double>(p);
+  r.torque_max_nm = wire::get<double>(p);
+  for (double v : r.torque_body_nm) if (!std::isfinite(v)) return Error::NonFinite;
+  if (!std::isfinite(r.torque_max_nm)) return Error::NonFinite;
+  m = r;
+  return Error::None;
+}
+
 // The run's vehicle and guidance settings (host -> flight), or what the flight software uses (its echo).
 struct Config {
   static constexpr Type kType = Type::Config;
@@ -876,6 +989,8 @@ inline std::size_t body_size(Type type) {
     case Type::Bye: return 72;
     case Type::Obstacles: return 944;
     case Type::ObstacleStatus: return 52;
+    case Type::ChaserAttitude: return 72;
+    case Type::Torque: return 40;
     case Type::Config: return 688;
     case Type::Law: return 524;
   }

@@ -88,6 +88,24 @@ void bind_app(py::module_& m) {
             return encoded(app.obstacle_status());
           },
           "the encoded obstacle_status the last step owes before its cmd, else None")
+      .def(
+          "handle_chaser_attitude",
+          [](FlightApp& app, const py::bytes& attitude) {
+            const std::string data = attitude;
+            msg::ChaserAttitude m;
+            const msg::Error e = msg::decode(reinterpret_cast<const uint8_t*>(data.data()), data.size(), m);
+            if (e != msg::Error::None) throw py::value_error(std::string("chaser_attitude: ") + msg::to_string(e));
+            app.accept_chaser_attitude(m);
+          },
+          py::arg("chaser_attitude"), "one encoded chaser_attitude message, kept for the next nav")
+      .def(
+          "torque_for",
+          [](const FlightApp& app, uint32_t step) -> py::object {
+            const auto tq = app.torque_for(step);
+            if (!tq) return py::none();
+            return encoded(*tq);
+          },
+          py::arg("step"), "the encoded torque message of that step (before its cmd), else None")
       .def("hello", [](const FlightApp& app, uint32_t session) { return encoded(app.hello(session)); },
            py::arg("session") = 1, "the encoded hello message")
       .def("telemetry", [](const FlightApp& app) { return encoded(app.telemetry()); },

@@ -127,6 +127,9 @@ void bind_guidance(py::module_& m) {
   py::enum_<RendezvousObjective>(m, "RendezvousObjective")
       .value("Quadratic", RendezvousObjective::Quadratic)
       .value("OneNorm", RendezvousObjective::OneNorm);
+  py::enum_<RelativeMotion>(m, "RelativeMotion")
+      .value("ClohessyWiltshire", RelativeMotion::ClohessyWiltshire)
+      .value("DoubleIntegrator", RelativeMotion::DoubleIntegrator);
   py::enum_<KeepoutDirection>(m, "KeepoutDirection")
       .value("NaturalMotion", KeepoutDirection::NaturalMotion)
       .value("Shortest", KeepoutDirection::Shortest);
@@ -262,6 +265,17 @@ void bind_guidance(py::module_& m) {
       .def_readwrite("obstacle_method", &GuidanceParams::obstacle_method)
       .def_readwrite("hyperplane_rate_rad_s", &GuidanceParams::hyperplane_rate_rad_s)
       .def_readwrite("hyperplane_active_range_m", &GuidanceParams::hyperplane_active_range_m)
+      .def_readwrite("relative_motion", &GuidanceParams::relative_motion)
+      .def_readwrite("holding_radius_m", &GuidanceParams::holding_radius_m, "r_hold,0 (0: off)")
+      .def_readwrite("holding_radius_min_m", &GuidanceParams::holding_radius_min_m)
+      .def_readwrite("holding_shrink", &GuidanceParams::holding_shrink, "gamma")
+      .def_readwrite("holding_tolerance_m", &GuidanceParams::holding_tolerance_m, "eta")
+      .def_readwrite("holding_attitude_tolerance_deg", &GuidanceParams::holding_attitude_tolerance_deg, "epsilon")
+      .def_readwrite("holding_phases", &GuidanceParams::holding_phases, "bit mask: 1 rendezvous, 2 approach")
+      .def_readwrite("entry_cone_half_angle_deg", &GuidanceParams::entry_cone_half_angle_deg, "(0: off)")
+      .def_readwrite("entry_cone_range_m", &GuidanceParams::entry_cone_range_m)
+      .def_readwrite("entry_cone_penalty", &GuidanceParams::entry_cone_penalty)
+      .def_readwrite("entry_cone_phases", &GuidanceParams::entry_cone_phases, "bit mask: 1 rendezvous, 2 approach, 4 docking")
       .def_readwrite("margins", &GuidanceParams::margins)
       .def_readwrite("finite_burns", &GuidanceParams::finite_burns)
       .def("mean_motion_rad_s", &GuidanceParams::mean_motion_rad_s)
@@ -289,7 +303,9 @@ void bind_guidance(py::module_& m) {
           "q_lvlh_body", [](const NavInput& n) { return wxyz(n.q_lvlh_body); },
           [](NavInput& n, const Eigen::Vector4d& q) { n.q_lvlh_body = quat(q); })
       .def_readwrite("omega_body_rad_s", &NavInput::omega_body_rad_s)
-      .def_readwrite("quality", &NavInput::quality, "how well x_lvlh and the thrusters are known");
+      .def_readwrite("quality", &NavInput::quality, "how well x_lvlh and the thrusters are known")
+      .def_readwrite("chaser_attitude_error_rad", &NavInput::chaser_attitude_error_rad,
+                     "the chaser's angle from its docking attitude (NaN: not sensed)");
 
   py::class_<Command>(m, "Command")
       .def_readonly("step", &Command::step)
@@ -346,6 +362,9 @@ void bind_guidance(py::module_& m) {
                                return ids;
                              })
       .def_property_readonly("obstacles_dropped", [](const Guidance& g) { return g.obstacles().dropped_total; })
+      .def_property_readonly("holding_radius_m", [](const Guidance& g) { return g.holding().radius(); },
+                             "the holding radius the last step planned with")
+      .def_property_readonly("holding_shrinks", [](const Guidance& g) { return g.holding().shrinks(); })
       .def_property_readonly("obstacles_rejected", [](const Guidance& g) { return g.obstacles().rejected_total; })
       .def("reset", &Guidance::reset, py::arg("start") = Phase::Rendezvous)
       .def(
@@ -394,7 +413,10 @@ void bind_guidance(py::module_& m) {
       .def_property_readonly("reference", &PhaseQp::reference, "set point / port track per stage, N+1 x 6")
       .def("keepout_row", &PhaseQp::keepout_row, py::arg("stage"))
       .def("cone_row", &PhaseQp::cone_row, py::arg("stage"))
-      .def("velocity_row", &PhaseQp::velocity_row, py::arg("stage"));
+      .def("velocity_row", &PhaseQp::velocity_row, py::arg("stage"))
+      .def("entry_row", &PhaseQp::entry_row, py::arg("stage"))
+      .def("set_holding_radius", &PhaseQp::set_holding_radius, py::arg("radius_m"))
+      .def_property_readonly("entry_cone_active", &PhaseQp::entry_cone_active);
 
   m.def(
       "build_phase_qp",
@@ -504,6 +526,19 @@ void bind_guidance(py::module_& m) {
       },
       py::arg("dv_cmd_mps"), py::arg("max_pulse_s"), py::arg("thrusters") = ThrusterParams(),
       "(pulse_s for +x,-x,+y,-y,+z,-z; realised dv) for a commanded LVLH delta-v");
+  m.def(
+      "holding_position",
+      [](const Eigen::Vector4d& q, const Eigen::Vector3d& port, double r) { return holding_position(quat(q).normalized(), port, r); },
+      py::arg("q_lvlh_body"), py::arg("port_body_m"), py::arg("radius_m"),
+      "the holding position on the sphere of radius_m in front of the port (eq. 9)");
+  m.def(
+      "entry_cone",
+      [](const Eigen::Vector4d& q, const Eigen::Vector3d& port, double a) {
+        const EntryCone c = entry_cone(quat(q).normalized(), port, a);
+        return py::make_tuple(Eigen::MatrixXd(c.rows), Eigen::VectorXd(c.bounds));
+      },
+      py::arg("q_lvlh_body"), py::arg("port_body_m"), py::arg("half_angle_rad"),
+      "(rows 2x3, bounds 2) of the entry cone rows . rho <= bounds (eq. 10)");
   m.def("max_pulse_s", &max_pulse_s, py::arg("u_max_mps"), py::arg("thrusters") = ThrusterParams());
   m.def(
       "pyramid_rows_lvlh", [](const Eigen::Vector4d& q, double a) { return pyramid_rows_lvlh(quat(q).normalized(), a); },

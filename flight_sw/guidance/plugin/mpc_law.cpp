@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <exception>
+#include <memory>
 #include <new>
 
 #include "flight_sw/guidance/guidance.hpp"
@@ -47,19 +48,35 @@ GuidanceParams params_from(const rvd_guidance_config& c) {
   return p;
 }
 
+// The law's state: the three-phase guidance, and the chaser's attitude controller where the truth has
+// the chaser's rotation (attitude.hpp).
+struct MpcLaw {
+  explicit MpcLaw(const GuidanceParams& p) : guidance(p) {
+    if (p.attitude.inertia_kgm2 > 0.0) attitude = std::make_unique<AttitudeMpc>(p);
+  }
+  Guidance guidance;
+  std::unique_ptr<AttitudeMpc> attitude;
+};
+
 void* create(const rvd_guidance_config* config, char* error, size_t error_size) {
   try {
-    return new Guidance(params_from(*config));
+    GuidanceParams p = params_from(*config);
+    if (config->native == nullptr && config->chaser_inertia_kgm2 > 0.0) {
+      p.attitude.inertia_kgm2 = config->chaser_inertia_kgm2;
+      p.attitude.torque_max_nm = config->torque_max_nm;
+    }
+    return new MpcLaw(p);
   } catch (const std::exception& e) {
     if (error && error_size) std::snprintf(error, error_size, "%s", e.what());
   }
   return nullptr;
 }
 
-void reset(void* law) { static_cast<Guidance*>(law)->reset(); }
+void reset(void* law) { static_cast<MpcLaw*>(law)->guidance.reset(); }
 
 int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_output* out) {
-  auto& g = *static_cast<Guidance*>(law);
+  MpcLaw& m = *static_cast<MpcLaw*>(law);
+  auto& g = m.guidance;
   NavInput in;
   in.step = nav->step;
   in.t_s = nav->t_s;
@@ -95,6 +112,16 @@ int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_outp
     if (nav->obstacles_sensed > static_cast<uint32_t>(n)) g.count_dropped_obstacles(nav->obstacles_sensed - n);
   }
 
+  if (nav->chaser_attitude_fresh && m.attitude) {  // the chaser's rotation: the decoupled part of the MPC
+    const Eigen::Quaterniond qc(nav->q_lvlh_chaser[0], nav->q_lvlh_chaser[1], nav->q_lvlh_chaser[2], nav->q_lvlh_chaser[3]);
+    if (qc.coeffs().allFinite() && std::abs(qc.norm() - 1.0) < 1e-3 && in.q_lvlh_body.coeffs().allFinite()) {
+      const int k = g.phase() == Phase::Rendezvous ? 0 : g.phase() == Phase::Approach ? 1 : 2;
+      const AttitudeMpc::Result r = m.attitude->step(k, yaw_rad(qc), nav->omega_chaser_rad_s[2],
+                                                     yaw_rad(in.q_lvlh_body.normalized()), in.omega_body_rad_s.z());
+      out->torque_body_nm[2] = r.torque_nm;
+      in.chaser_attitude_error_rad = docking_attitude_error_rad(qc.normalized(), in.q_lvlh_body.normalized());
+    }
+  }
   const Command c = g.step(in, budget_s * 1e6);
   for (int i = 0; i < 3; ++i) out->dv_lvlh_mps[i] = c.dv_cmd_mps(i);
   out->phase = static_cast<uint8_t>(c.phase);
@@ -106,6 +133,14 @@ int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_outp
   out->primal_residual = c.solved ? finite_or(c.solver.primal_residual, -1.0) : -1.0;
   out->dual_residual = c.solved ? finite_or(c.solver.dual_residual, -1.0) : -1.0;
   out->objective = c.solved ? finite_or(c.solver.objective, 0.0) : 0.0;
+  if (g.holding().active()) {  // the record's law_values: the holding radius this step planned with
+    std::snprintf(out->named[out->n_named].name, RVD_NAME_SIZE, "holding_radius_m");
+    out->named[out->n_named++].value = g.holding().radius();
+  }
+  if (std::isfinite(in.chaser_attitude_error_rad)) {
+    std::snprintf(out->named[out->n_named].name, RVD_NAME_SIZE, "attitude_error_deg");
+    out->named[out->n_named++].value = in.chaser_attitude_error_rad * 180.0 / 3.14159265358979323846;
+  }
   const ObstacleSet& held = g.obstacles();
   out->obstacles_capacity = static_cast<uint32_t>(std::max(g.params().obstacle_capacity, 0));
   out->obstacles_held = static_cast<uint32_t>(held.count);
@@ -115,7 +150,7 @@ int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_outp
   return 0;
 }
 
-void destroy(void* law) { delete static_cast<Guidance*>(law); }
+void destroy(void* law) { delete static_cast<MpcLaw*>(law); }
 
 }  // namespace
 
@@ -140,6 +175,8 @@ rvd_guidance_config generic_config(const GuidanceParams& p) {
   c.docking_half_angle_deg = p.docking.los_half_angle_deg;
   for (int i = 0; i < 3; ++i) c.port_body_m[i] = p.port_body_m(i);
   c.finite_burns = p.finite_burns ? 1 : 0;
+  c.chaser_inertia_kgm2 = p.attitude.inertia_kgm2;
+  c.torque_max_nm = p.attitude.torque_max_nm;
   return c;
 }
 
