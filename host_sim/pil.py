@@ -112,18 +112,20 @@ def error_model_args(sim: Simulator) -> list[str]:
 
 
 def truth_args(sim: Simulator) -> list[str]:
-    """Flight options for what the truth fixes beyond the vehicle the config message carries: on an
-    air-bearing table (the planar truth) no orbit, the chaser's inertia and torque limit, and where on
-    the target it docks (the table's scale is not the orbital scenarios' 0.5 m). On the
-    command line, so they are pinned (a scenario cannot contradict its own truth) and take none of the
-    config message's 512 bytes of settings."""
+    """Flight options for what the truth fixes beyond the vehicle the config message carries: where on
+    the target the port is (the scenario's, in every scenario: a flight software aiming at its own
+    default port would dock somewhere else), and on an air-bearing table (the planar truth) no orbit
+    and the chaser's inertia and torque limit. On the command line, before any options of the run's
+    own, so they are pinned (a scenario cannot contradict its own truth; a study that wants the flight
+    to believe another port says so after them) and take none of the config message's 512 bytes of
+    settings."""
     sc = sim.scenario
-    if not sc.is_planar:
-        return []
     port = sc.target.docking_port_body_m
+    args = [a for axis, v in zip("xyz", port) for a in ("--set", f"port_body_{axis}_m={float(v)!r}")]
+    if not sc.is_planar:
+        return args
     return ["--set", "relative_motion=double_integrator", "--set", f"attitude.inertia_kgm2={sc.planar.chaser_inertia_kgm2!r}",
-            "--set", f"attitude.torque_max_nm={sc.planar.torque_max_nm!r}",
-            *[a for axis, v in zip("xyz", port) for a in ("--set", f"port_body_{axis}_m={float(v)!r}")]]
+            "--set", f"attitude.torque_max_nm={sc.planar.torque_max_nm!r}", *args]
 
 
 def write_law_values(run_dir: Path, values: list) -> None:

@@ -73,6 +73,20 @@ def test_the_flight_software_plans_with_the_scenarios_vehicle(tmp_path, flight_e
     assert summary.dv_total_mps == pytest.approx(nominal.dv_total_mps, rel=0.1)
 
 
+def test_the_flight_software_docks_at_the_scenarios_port(tmp_path, flight_exe):
+    """The port is the scenario's (here 2 m out on the docking axis, the flight software's default is
+    0.5 m): the flight software aims at it, so the ideal run ends within r3 (0.5 m, where the flight
+    declares docking) of that port in truth, not 1.5 m short of the port in front of the default one."""
+    path = _scenario(tmp_path, "port", [("docking_port_body_m = [0.5, 0.0, 0.0]", "docking_port_body_m = [2.0, 0.0, 0.0]")])
+    summary, run_dir = _run(tmp_path, path, "port")
+    assert summary.end == "docked", summary.end
+    assert summary.final_range_to_port_m <= flight_sw.GuidanceParams().dock_tolerance_m
+    meta, steps = load_run(run_dir)
+    assert "port_body_x_m=2.0" in " ".join(meta["flight_command"])
+    last = steps.iloc[-1]
+    assert last["range_port_m"] == pytest.approx(summary.final_range_to_port_m, abs=1e-9)
+
+
 def test_a_vehicle_mismatch_is_refused_unless_asked_for(tmp_path, flight_exe):
     pinned = ["--set", "thrusters.mass_kg=16"]  # the flight command line pins the mass
     summary, run_dir = _run(tmp_path, "case1_vbar", "refused", pinned)
