@@ -46,7 +46,7 @@ test: build
 	@# pytest runs one worker per core, each test file on one worker (module fixtures run once).
 	@# The QEMU tests need the counting plugin (qemu-plugin.h from Debian's qemu source package) and
 	@# the system-mode images (Debian ARM kernels, busybox): fetched once into build/, ~15 s.
-	$(PY) -m qemu prepare q7s rpi3
+	$(PY) -m rvd_pil.qemu prepare q7s rpi3
 	@cd $(NATIVE) && ctest --output-on-failure -j $(JOBS); c=$$?; \
 	cd $(CURDIR) && $(PY) -m pytest -q -n $(JOBS) --dist loadfile tests; p=$$?; \
 	if [ $$c -ne 0 ] || [ $$p -ne 0 ]; then echo "make test: FAILED (ctest exit $$c, pytest exit $$p)"; exit 1; fi
@@ -58,25 +58,25 @@ asan: | deps
 
 bench: build
 	$(PY) -m pip install -q -e ".[test,bench]" --no-build-isolation
-	$(PY) -m bench.solvers
-	$(PY) -m bench.link_latency
-	$(PY) -m bench.link_auth
+	$(PY) -m rvd_pil.bench.solvers
+	$(PY) -m rvd_pil.bench.link_latency
+	$(PY) -m rvd_pil.bench.link_auth
 
 # The emulation platform on its own: fetches the plugin header, ARM kernels and busybox
-# into build/ (python -m qemu prepare), then runs every QEMU test: user mode, plugin, system mode.
+# into build/ (python -m rvd_pil.qemu prepare), then runs every QEMU test: user mode, plugin, system mode.
 qemu-check: venv | deps-pil
-	$(PY) -m qemu prepare
+	$(PY) -m rvd_pil.qemu prepare
 	$(PY) -m pytest -q tests/test_qemu_smoke.py tests/test_qemu_plugin.py tests/test_qemu_system.py
 
 # The emulated PIL campaign. TARGET=q7s (or a comma-separated list) selects targets, CPU=cortex-a8
-# swaps the emulated CPU model; PIL_ARGS passes more options to bench/campaign.py (e.g. --full).
+# swaps the emulated CPU model; PIL_ARGS passes more options to rvd_pil/bench/campaign.py (e.g. --full).
 # GUIDANCE=PATH flies a plug-in guidance law (a folder with law.toml and its sources) instead of the
 # built-in MPC, built statically for every target by the same cross toolchains (report in reports/pil-<folder>).
 TARGET ?= q7s,rpi3
 PIL_OUT ?= reports/pil$(if $(GUIDANCE),-$(notdir $(abspath $(GUIDANCE))))
 pil: export OPENBLAS_NUM_THREADS = 1
 pil: deps-pil build
-	$(PY) -m bench.campaign --targets $(TARGET) $(if $(CPU),--cpu $(CPU)) $(if $(GUIDANCE),--guidance $(GUIDANCE)) --out $(PIL_OUT) $(PIL_ARGS)
+	$(PY) -m rvd_pil.bench.campaign --targets $(TARGET) $(if $(CPU),--cpu $(CPU)) $(if $(GUIDANCE),--guidance $(GUIDANCE)) --out $(PIL_OUT) $(PIL_ARGS)
 
 clean:
 	rm -rf build

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Generate the C++ and Python codecs of the rvd-pil link messages from schema/rvd_messages.toml.
 
-    python schema/generate.py          write flight_sw/link/messages.hpp and host_sim/messages.py
+    python schema/generate.py          write flight_sw/link/messages.hpp and rvd_pil/host_sim/messages.py
     python schema/generate.py --check  exit 1 if either file is not what the schema generates
 
 The schema is the single definition; both outputs are committed so that a cross build needs no

@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parent.parent
 @pytest.fixture(autouse=True)
 def _no_cpu_override(monkeypatch):
     """A user's $QEMU_CPU must not change what the tests check (tests that swap the CPU set it)."""
-    from qemu import targets
+    from rvd_pil.qemu import targets
 
     monkeypatch.delenv(targets.CPU_ENV, raising=False)
 
@@ -23,7 +23,7 @@ def _no_cpu_override(monkeypatch):
 @pytest.fixture(scope="session")
 def flight_exe() -> Path:
     """The native flight executable (built by `make build`, which `make test` runs first)."""
-    from host_sim.pil import find_flight_executable
+    from rvd_pil.host_sim.pil import find_flight_executable
 
     try:
         return find_flight_executable()

@@ -1,4 +1,4 @@
-"""bench/link_latency.py, flight section: the native row on a short run. Structure only, never speed
+"""rvd_pil/bench/link_latency.py, flight section: the native row on a short run. Structure only, never speed
 (the machine is shared): every step answered exactly once by the trivial flight path, the figures
 finite and positive and consistent with each other, the JSON complete, unavailable rows explained."""
 import json
@@ -7,7 +7,7 @@ import shutil
 
 import pytest
 
-from bench import link_latency as ll
+from rvd_pil.bench import link_latency as ll
 
 STEPS = 50
 

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parent.parent
 def rvd_run(*args, cwd=None, timeout=300) -> subprocess.CompletedProcess:
     """The installed console script, as a user would call it."""
     exe = Path(sys.executable).parent / "rvd-run"
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "host_sim.cli"]
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "rvd_pil.host_sim.cli"]
     return subprocess.run([*cmd, *map(str, args)], capture_output=True, text=True, timeout=timeout, cwd=cwd)
 
 
@@ -101,10 +101,10 @@ def test_existing_record_directory_is_refused(tmp_path, flight_exe):
 @pytest.mark.qemu
 @pytest.mark.slow
 def test_target_runs_under_qemu_with_counts_and_estimated_delay(tmp_path):
-    from qemu import plugin, targets
+    from rvd_pil.qemu import plugin, targets
 
     if plugin.build(download=False) is None:
-        pytest.fail("the counting plugin is not built: `python -m qemu prepare` (make test runs it)")
+        pytest.fail("the counting plugin is not built: `python -m rvd_pil.qemu prepare` (make test runs it)")
     t = targets.load("rpi3")
     r = rvd_run("case1_vbar", "--truth", "cw", "--ideal", "--delay", "estimated", "--target", "rpi3",
                 "--no-cycle-model", "-q", "--out", tmp_path / "run", timeout=900)

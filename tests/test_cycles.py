@@ -1,4 +1,4 @@
-"""The cycle model (qemu/cycles.py) and the block-profile plugin (qemu/plugin/block_profile.c).
+"""The cycle model (rvd_pil/qemu/cycles.py) and the block-profile plugin (rvd_pil/qemu/plugin/block_profile.c).
 
 Independent truths:
   - the instruction-counting plugin: the block profiler's total (executions x block size) of every
@@ -6,8 +6,8 @@ Independent truths:
   - run-to-run: instruction counts, block counts, cache-model misses and the cycle estimates of the
     same executable with the same inputs are identical; and they stay so when what differs from run
     to run differs: the clock's readings inside a solve, the work between two solves;
-  - published timings: the microbenchmarks (bench/microbench/) whose cost per iteration follows from
-    Arm's documents (bench/microbench/expected.toml, each figure cited) are reproduced within 10 %;
+  - published timings: the microbenchmarks (rvd_pil/bench/microbench/) whose cost per iteration follows from
+    Arm's documents (rvd_pil/bench/microbench/expected.toml, each figure cited) are reproduced within 10 %;
   - llvm-15 itself: the LLVM figures the correction table replaces are the ones llvm-mca-15 uses;
   - analytic cache behaviour: a pointer chase over a working set larger than L2 misses every line
     in both levels, one inside L1 misses only on its first pass.
@@ -22,7 +22,7 @@ import subprocess
 
 import pytest
 
-from qemu import asm_dataflow, build, cycles, plugin, targets, user
+from rvd_pil.qemu import asm_dataflow, build, cycles, plugin, targets, user
 
 pytestmark = pytest.mark.qemu
 
@@ -33,7 +33,7 @@ def libs():
     counter = plugin.build(download=fetch)
     profiler = plugin.build_profile(download=fetch)
     if counter is None or profiler is None:
-        pytest.skip("plugins not built: run `python -m qemu prepare` (or set RVD_QEMU_FETCH=1)")
+        pytest.skip("plugins not built: run `python -m rvd_pil.qemu prepare` (or set RVD_QEMU_FETCH=1)")
     if shutil.which(cycles.LLVM_MCA) is None:
         pytest.skip("llvm-mca-15 missing: tools/install-deps pil")
     return counter, profiler
@@ -124,7 +124,7 @@ def test_the_users_environment_does_not_reach_an_emulated_flight_process(libs, p
     stack and so the cache sets of stack data. A flight process under QEMU gets a fixed environment
     (the link key has a fixed length), so a checkout at another path or a longer shell environment
     gives the same figures; a native flight process keeps the caller's environment."""
-    from host_sim.pil import EMULATED_FLIGHT_ENV, flight_environment
+    from rvd_pil.host_sim.pil import EMULATED_FLIGHT_ENV, flight_environment
 
     t, exe = probe
     key = bytes(range(32))
@@ -206,7 +206,7 @@ def test_cache_model_misses_follow_the_working_set(libs, tmp_path):
 
 @pytest.mark.parametrize("cpu", ["cortex-a53", "cortex-a55", "cortex-a72", "cortex-a9", "cortex-a8"])
 def test_microbenchmarks_reproduce_published_timings(libs, cpu, tmp_path):
-    from bench.microbench import run as microbench
+    from rvd_pil.bench.microbench import run as microbench
 
     tname, build_cpu = microbench.CPUS[cpu]
     t = targets.load(tname, cpu=build_cpu)
@@ -232,7 +232,7 @@ def _mca(cpu: str, triple: str, text: str, iterations: int = 1) -> dict:
 
 
 def test_correction_table_names_llvm15s_own_figures(libs):
-    """Every `llvm_latency` of qemu/cycle_models.toml is what llvm-mca-15 gives the entry's example
+    """Every `llvm_latency` of rvd_pil/qemu/cycle_models.toml is what llvm-mca-15 gives the entry's example
     instruction (so the table still describes the LLVM it corrects)."""
     checked = 0
     for cpu, entry in cycles.models().items():
@@ -321,7 +321,7 @@ def test_memory_term_is_zero_without_misses_and_grows_with_them():
 
 
 def test_perf_stat_output_is_parsed_and_refused_without_a_pmu():
-    from bench import calibrate
+    from rvd_pil.bench import calibrate
 
     # this machine's own `perf stat -x, -e cycles:u,instructions:u,L1-dcache-load-misses:u` (a VM: no PMU)
     vm = ("# started on Tue Dec  1 19:41:58 2026\n\n<not supported>,,cycles:u,0,100.00,,\n"
@@ -340,7 +340,7 @@ def test_calibration_factor_is_applied_and_marked(libs, tmp_path, monkeypatch):
     """prepare (a real QEMU run of the ideal Case 1) then apply with a board measurement 1.25 x the
     model's nominal cycles: the factor is written, the model scales its nominal figures by it and
     marks them calibrated; a board run that executed other instructions is refused."""
-    from bench import calibrate
+    from rvd_pil.bench import calibrate
 
     t = targets.load("rpi3")
     if not shutil.which(t.compiler):

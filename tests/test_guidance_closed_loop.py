@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-import flight_sw as fsw
+from rvd_pil import flight_sw as fsw
 from support.cw_reference import cw_a
 from support.guidance_geometry import DEG, in_pyramid, quat_after, rotate, solve_clarabel
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-import flight_sw as fsw
+from rvd_pil import flight_sw as fsw
 from support.cw_reference import cw_a
 
-MU, RE = 3.986004415e14, 6378136.3  # EGM96, as host_sim/constants.py
+MU, RE = 3.986004415e14, 6378136.3  # EGM96, as rvd_pil/host_sim/constants.py
 
 
 def test_mean_motion_is_keplerian():

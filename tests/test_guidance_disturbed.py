@@ -5,13 +5,13 @@ thrust amplitude error, sensor noise (5 cm, 1 mm/s), finite burns (the default r
 no control delay so that runs repeat). The figures asserted are the acceptance limits of the safety
 verdict: no keep-out, corridor, overshoot or collision violation, docking-cone excursion at most 2 cm
 and |v|inf at most v_max + 1 mm/s in docking. The full-size version (100 starts x 3 noise seeds) is
-the benchmark `python -m bench.safety_mc`.
+the benchmark `python -m rvd_pil.bench.safety_mc`.
 """
 import pytest
 
-from host_sim import scenario
-from host_sim.pil import run_pil
-from host_sim.server import ServerConfig
+from rvd_pil.host_sim import scenario
+from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.server import ServerConfig
 
 DISTURBED = dict(truth="nonlinear", sensor_noise=True, thrust_noise=True, impulsive=False)
 HARD_LIMITS = ("collision", "keepout", "approach_corridor", "overshoot", "thrust_command", "thrust_realised",
@@ -46,7 +46,7 @@ def test_the_dissertation_cases_dock_safely_under_every_disturbance(tmp_path, fl
 def test_ten_random_starts_dock_safely_with_no_infeasible_approach_qp(tmp_path, flight_exe):
     """(A rendezvous QP can still be infeasible when a fast-closing chaser meets the re-centred keep-out
     planes far out; the recovery QP flies it and the record says so.)"""
-    from host_sim.record import load_run
+    from rvd_pil.host_sim.record import load_run
 
     approach_infeasible = 0
     for start in range(1, 11):
@@ -60,7 +60,7 @@ def test_ten_random_starts_dock_safely_with_no_infeasible_approach_qp(tmp_path, 
 def test_the_nominal_mpc_without_filter_or_margins_is_judged_unsafe(tmp_path, flight_exe):
     """The monitor must be able to fire on a real run: the dissertation's nominal MPC on raw
     measurements (no navigation filter, no margins) under the same disturbances leaves its limits."""
-    from host_sim.record import load_events, load_run
+    from rvd_pil.host_sim.record import load_events, load_run
 
     summary, run_dir = disturbed_run(tmp_path, "case1_vbar", flight_args=("--nav-filter", "off", "--margins", "off"))
     assert summary.safety["verdict"] == "unsafe"

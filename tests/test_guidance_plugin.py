@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import flight_sw
-from host_sim import scenario as scenarios
-from host_sim.pil import run_pil
-from host_sim.record import load_events, load_run
-from host_sim.server import ServerConfig
+from rvd_pil import flight_sw
+from rvd_pil.host_sim import scenario as scenarios
+from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.record import load_events, load_run
+from rvd_pil.host_sim.server import ServerConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 IDEAL = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
@@ -129,7 +129,7 @@ def test_list_params_offers_the_guidance_settings_and_checks_values(flight_exe):
 
 
 def _rvd_run(*args):
-    return subprocess.run([sys.executable, "-m", "host_sim.cli", *args, "-q"], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "rvd_pil.host_sim.cli", *args, "-q"], capture_output=True, text=True,
                           cwd=ROOT, timeout=600)
 
 

@@ -8,10 +8,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from host_sim.guidance_build import build_native
-from host_sim.pil import run_pil
-from host_sim.record import load_run
-from host_sim.server import ServerConfig
+from rvd_pil.host_sim.guidance_build import build_native
+from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.record import load_run
+from rvd_pil.host_sim.server import ServerConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 LAW = ROOT / "examples" / "guidance" / "cw_target"
@@ -44,7 +44,7 @@ def test_rvd_run_guidance_with_a_folder_without_a_law_is_one_line_exit_2(tmp_pat
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, "-m", "host_sim.cli", "case1_vbar", "--guidance", str(tmp_path), "-q"],
+    r = subprocess.run([sys.executable, "-m", "rvd_pil.host_sim.cli", "case1_vbar", "--guidance", str(tmp_path), "-q"],
                        capture_output=True, text=True, cwd=ROOT, timeout=120)
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1 and str(tmp_path / "law.toml") in lines[0], r.stderr

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host_sim import scenario as scenarios
-from host_sim.guidance_build import LawBuildError, build_native, load_manifest
-from host_sim.pil import run_pil
-from host_sim.record import load_events, load_run
-from host_sim.server import ServerConfig
+from rvd_pil.host_sim import scenario as scenarios
+from rvd_pil.host_sim.guidance_build import LawBuildError, build_native, load_manifest
+from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.record import load_events, load_run
+from rvd_pil.host_sim.server import ServerConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 LAW = ROOT / "tests" / "guidance_laws" / "faulty"

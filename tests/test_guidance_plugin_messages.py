@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from host_sim import messages as msg
+from rvd_pil.host_sim import messages as msg
 
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = tomllib.loads((ROOT / "schema" / "golden.toml").read_text())

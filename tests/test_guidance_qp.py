@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-import flight_sw as fsw
+from rvd_pil import flight_sw as fsw
 from support.guidance_geometry import DEG, RBAR, VBAR, in_pyramid, quat_after, rotate, solve_clarabel, solve_proxsuite
 from support.qp_forms import from_dict
 

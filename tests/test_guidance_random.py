@@ -4,7 +4,7 @@ closed loop never crashes, never commands NaN or more than u_max, and docks."""
 import numpy as np
 import pytest
 
-import flight_sw as fsw
+from rvd_pil import flight_sw as fsw
 from support.guidance_geometry import DEG, VBAR, in_pyramid
 
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-import flight_sw as fsw
+from rvd_pil import flight_sw as fsw
 from support.guidance_geometry import VBAR
 
 FAR = np.array([140.0, -1580.0, 60.0, -0.9, -0.32, 0.0])

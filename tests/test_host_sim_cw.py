@@ -8,10 +8,10 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from host_sim import constants as k
-from host_sim.cw import cw_forced_response, cw_stm, drift_free_velocity
-from host_sim.scenario import load
-from host_sim.simulator import Simulator
+from rvd_pil.host_sim import constants as k
+from rvd_pil.host_sim.cw import cw_forced_response, cw_stm, drift_free_velocity
+from rvd_pil.host_sim.scenario import load
+from rvd_pil.host_sim.simulator import Simulator
 
 from support.cw_reference import cw_a
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from host_sim import constants as k
-from host_sim.atmosphere import density_kg_m3
-from host_sim.dynamics import ForceModel
-from host_sim.simulator import Simulator
+from rvd_pil.host_sim import constants as k
+from rvd_pil.host_sim.atmosphere import density_kg_m3
+from rvd_pil.host_sim.dynamics import ForceModel
+from rvd_pil.host_sim.simulator import Simulator
 
 MU = k.MU_EARTH_M3_S2
 DAY = 86400.0

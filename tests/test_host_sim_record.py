@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host_sim.record import HOST_DIED, STEP_COLUMNS, RunRecorder, load_events, load_run
-from host_sim.simulator import Simulator
+from rvd_pil.host_sim.record import HOST_DIED, STEP_COLUMNS, RunRecorder, load_events, load_run
+from rvd_pil.host_sim.simulator import Simulator
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -20,8 +20,8 @@ REPO = Path(__file__).resolve().parents[1]
 CHILD = r"""
 import sys
 import numpy as np
-from host_sim.simulator import Simulator
-from host_sim.record import RunRecorder
+from rvd_pil.host_sim.simulator import Simulator
+from rvd_pil.host_sim.record import RunRecorder
 sim = Simulator("case1_vbar", truth="nonlinear", seed=42)
 rec = RunRecorder(sys.argv[1], {"scenario": "case1_vbar", "seed": 42}, extra_columns=["solve_time_us", "note"])
 rng = np.random.default_rng(1)

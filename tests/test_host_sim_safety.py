@@ -1,5 +1,5 @@
-"""The safety monitor (host_sim.safety) against trajectories whose violations are known in closed form,
-the truth path it is fed (host_sim.simulator), and whole PIL runs: a deliberately unsafe guidance
+"""The safety monitor (rvd_pil.host_sim.safety) against trajectories whose violations are known in closed form,
+the truth path it is fed (rvd_pil.host_sim.simulator), and whole PIL runs: a deliberately unsafe guidance
 setting must be judged unsafe, the default one safe."""
 import math
 
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from host_sim.attitude import TargetAttitude
-from host_sim.cw import cw_forced_response, cw_stm
-from host_sim.safety import SafetyLimits, SafetyMonitor, pyramid_rows
-from host_sim.simulator import Simulator
+from rvd_pil.host_sim.attitude import TargetAttitude
+from rvd_pil.host_sim.cw import cw_forced_response, cw_stm
+from rvd_pil.host_sim.safety import SafetyLimits, SafetyMonitor, pyramid_rows
+from rvd_pil.host_sim.simulator import Simulator
 
 LIM = SafetyLimits()
 A15, A8 = math.radians(15.0), math.radians(8.0)

@@ -8,9 +8,9 @@ import pytest
 from scipy import stats
 from scipy.linalg import expm
 
-from host_sim import constants as k
-from host_sim.scenario import ScenarioError, available, from_toml, load, random_scenario
-from host_sim.simulator import Simulator
+from rvd_pil.host_sim import constants as k
+from rvd_pil.host_sim.scenario import ScenarioError, available, from_toml, load, random_scenario
+from rvd_pil.host_sim.simulator import Simulator
 
 
 def rotate(q, v):
@@ -116,9 +116,9 @@ def test_random_scenarios_follow_the_monte_carlo_distribution():
 
 
 def test_stable_velocity_gives_a_closed_target_centred_cw_orbit():
-    """Independent check of host_sim.cw.drift_free_velocity: over one orbit the CW motion returns
+    """Independent check of rvd_pil.host_sim.cw.drift_free_velocity: over one orbit the CW motion returns
     to its start, and it is centred on the target (mean position over the orbit ~ 0)."""
-    from host_sim.cw import drift_free_velocity
+    from rvd_pil.host_sim.cw import drift_free_velocity
     n = load("case1_vbar").orbit.mean_motion_rad_s
     a = np.zeros((6, 6))
     a[0:3, 3:6] = np.eye(3)

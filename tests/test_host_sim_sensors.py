@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from host_sim.record import RunRecorder, load_run
-from host_sim.simulator import Simulator
+from rvd_pil.host_sim.record import RunRecorder, load_run
+from rvd_pil.host_sim.simulator import Simulator
 
 
 def test_sensor_noise_matches_sigma_over_ten_thousand_samples():

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm, solve_continuous_lyapunov
 
-from host_sim.cw import cw_stm
-from host_sim.frames import lvlh_basis
-from host_sim.noise import GaussMarkovParams, ThrustAmplitudeError
-from host_sim.simulator import Simulator
+from rvd_pil.host_sim.cw import cw_stm
+from rvd_pil.host_sim.frames import lvlh_basis
+from rvd_pil.host_sim.noise import GaussMarkovParams, ThrustAmplitudeError
+from rvd_pil.host_sim.simulator import Simulator
 
 F_NOM, MASS, MIB = 0.5, 14.0, 0.010
 AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
@@ -130,7 +130,7 @@ def test_gauss_markov_initial_state_is_drawn_from_the_steady_state():
 
 
 def test_steady_state_sigma_is_about_4_6_percent():
-    """The units interpretation documented in host_sim.noise: w in percent, eta as white-noise
+    """The units interpretation documented in rvd_pil.host_sim.noise: w in percent, eta as white-noise
     intensities, sigma_w = 4.62 % (so +-7 % is about 1.5 sigma)."""
     assert math.sqrt(P_INF[0, 0]) == pytest.approx(4.62, abs=0.01)
     assert np.allclose(GaussMarkovParams().steady_state_covariance(), P_INF, rtol=1e-12)

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-import flight_sw
-from host_sim.scenario import load
-from host_sim.simulator import Simulator
+from rvd_pil import flight_sw
+from rvd_pil.host_sim.scenario import load
+from rvd_pil.host_sim.simulator import Simulator
 
 SIGMA_P, SIGMA_V = 0.05, 0.001
 

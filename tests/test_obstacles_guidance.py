@@ -1,15 +1,15 @@
 """Guidance with obstacles (flight_sw/guidance/obstacles.hpp) in closed loop against the impulsive CW
 plant: the chaser's true path, sampled every second between commands, keeps every obstacle's clearance
-(r - r_obs)' S (r - r_obs) >= 1, computed here by host_sim.obstacles from the obstacles' own motion.
+(r - r_obs)' S (r - r_obs) >= 1, computed here by rvd_pil.host_sim.obstacles from the obstacles' own motion.
 Without obstacle rows the same geometry is violated (so the test can fail)."""
 import math
 
 import numpy as np
 import pytest
 
-import flight_sw as fsw
-from host_sim.cw import cw_stm
-from host_sim.obstacles import Obstacle, ObstacleField
+from rvd_pil import flight_sw as fsw
+from rvd_pil.host_sim.cw import cw_stm
+from rvd_pil.host_sim.obstacles import Obstacle, ObstacleField
 
 
 def fly(params, case, obstacles, max_steps=400, tell=True):
@@ -74,9 +74,9 @@ def test_case1_docks_around_a_crossing_obstacle_with_clearance_of_at_least_one(p
 
 
 def test_the_papers_3d_scenario_reaches_the_holding_distance_clear_of_both_moving_spheres():
-    """Dong, Ghiglino et al.'s Table 1 scenario (bench/obstacles_dong3d.py): without obstacle rows the
+    """Dong, Ghiglino et al.'s Table 1 scenario (rvd_pil/bench/obstacles_dong3d.py): without obstacle rows the
     path runs through both spheres; with them it stays out of both and still reaches 2.3 m."""
-    from bench import obstacles_dong3d as seed
+    from rvd_pil.bench import obstacles_dong3d as seed
 
     blind = seed.fly(seed.params(False, False), seed.OBSTACLES)
     assert blind["reached"] and min(blind["clearance"].values()) < 1.0

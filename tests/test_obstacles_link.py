@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host_sim import messages as msg
-from host_sim.obstacles import Obstacle, ObstacleField
-from host_sim.server import obstacles_message
+from rvd_pil.host_sim import messages as msg
+from rvd_pil.host_sim.obstacles import Obstacle, ObstacleField
+from rvd_pil.host_sim.server import obstacles_message
 
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = tomllib.loads((ROOT / "schema" / "golden.toml").read_text())

@@ -9,14 +9,14 @@ the chaser senses by the obstacles message, judged on the truth by the safety mo
 import dataclasses
 from pathlib import Path
 
-import flight_sw as fsw
+from rvd_pil import flight_sw as fsw
 import pytest
 
-from host_sim import scenario
-from host_sim.obstacles import Obstacle
-from host_sim.pil import run_pil
-from host_sim.record import load_events
-from host_sim.server import ServerConfig
+from rvd_pil.host_sim import scenario
+from rvd_pil.host_sim.obstacles import Obstacle
+from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.record import load_events
+from rvd_pil.host_sim.server import ServerConfig
 
 FAR = [Obstacle(id=10 + k, semi_axes_m=(10.0, 10.0, 10.0), position_lvlh_m=pos)
        for k, pos in enumerate([(2500.0, 0.0, 0.0), (-2600.0, 0.0, 0.0), (0.0, 0.0, 2700.0), (0.0, 0.0, -2800.0)])]
@@ -69,8 +69,8 @@ def test_without_obstacle_rows_the_same_run_is_judged_unsafe(tmp_path):
 def test_the_in_process_path_flies_the_obstacles_as_the_executable_does(tmp_path):
     """Studies' in-process fast path: the same obstacles message into the same C++ application, so the
     same trajectory, the same clearance and the same obstacle_status as the native executable's run."""
-    from studies.inprocess import run_in_process
-    from studies.settings import GuidanceSettings
+    from rvd_pil.studies.inprocess import run_in_process
+    from rvd_pil.studies.settings import GuidanceSettings
 
     kw = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
     native, _ = run_pil("case1_crossing_obstacle", config=ServerConfig(delay_model="none"),

@@ -13,10 +13,10 @@ import math
 
 import numpy as np
 
-from host_sim import scenario
-from host_sim.pil import run_pil
-from host_sim.record import load_run
-from host_sim.server import ServerConfig
+from rvd_pil.host_sim import scenario
+from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.record import load_run
+from rvd_pil.host_sim.server import ServerConfig
 
 
 def assert_docked_clear(summary):
@@ -51,8 +51,8 @@ def test_case_b_disturbed_docks_around_the_moving_obstacles(tmp_path):
 
 
 def test_the_in_process_path_flies_the_planar_scenario_as_the_executable_does(tmp_path):
-    from studies.inprocess import run_in_process
-    from studies.settings import GuidanceSettings
+    from rvd_pil.studies.inprocess import run_in_process
+    from rvd_pil.studies.settings import GuidanceSettings
 
     sc = scenario.load("dong_2d_case_a")
     native, native_dir = run_pil(sc, sensor_noise=False, thrust_noise=False, impulsive=True,

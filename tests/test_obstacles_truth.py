@@ -1,15 +1,15 @@
-"""Obstacles in the truth (host_sim.obstacles, the safety monitor's obstacle limit, scenario loading):
+"""Obstacles in the truth (rvd_pil.host_sim.obstacles, the safety monitor's obstacle limit, scenario loading):
 clearance against trajectories whose closest approach is known in closed form."""
 import math
 
 import numpy as np
 import pytest
 
-from host_sim import scenario as scenarios
-from host_sim.attitude import TargetAttitude
-from host_sim.cw import cw_stm
-from host_sim.obstacles import Obstacle, ObstacleField
-from host_sim.safety import SafetyLimits, SafetyMonitor
+from rvd_pil.host_sim import scenario as scenarios
+from rvd_pil.host_sim.attitude import TargetAttitude
+from rvd_pil.host_sim.cw import cw_stm
+from rvd_pil.host_sim.obstacles import Obstacle, ObstacleField
+from rvd_pil.host_sim.safety import SafetyLimits, SafetyMonitor
 
 N = 0.0011  # mean motion [rad/s], ~500 km
 RENDEZVOUS = 1

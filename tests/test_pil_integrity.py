@@ -32,12 +32,12 @@ from pathlib import Path
 import pytest
 import zenoh
 
-import flight_sw
+from rvd_pil import flight_sw
 from support.flight_reference import flight_params
-from host_sim import messages as msg
-from host_sim.pil import REPO, find_flight_executable, run_pil
-from host_sim.record import HOST_DIED, TIMING_COLUMNS, load_events, load_run, record_digest
-from host_sim.server import ServerConfig
+from rvd_pil.host_sim import messages as msg
+from rvd_pil.host_sim.pil import REPO, find_flight_executable, run_pil
+from rvd_pil.host_sim.record import HOST_DIED, TIMING_COLUMNS, load_events, load_run, record_digest
+from rvd_pil.host_sim.server import ServerConfig
 
 IDEAL = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
 WAIT_S = 10.0  # bound of every wait on a condition below
@@ -443,8 +443,8 @@ def test_commands_for_a_step_never_asked_for_are_counted_and_ignored(tmp_path, r
 
 HOST_THAT_HANGS_AT_STEP_25 = """
 import sys, threading
-from host_sim.pil import run_pil
-from host_sim.server import ServerConfig
+from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.server import ServerConfig
 
 def on_started(server, proc):
     def on_step(k, summary, cmd):
@@ -462,7 +462,7 @@ HOST_LOSS_BOUND_S = 10.0
 
 
 def test_host_killed_with_sigkill_the_flight_software_leaves_and_the_record_says_the_host_died(tmp_path):
-    from host_sim.record import _process_start_ticks
+    from rvd_pil.host_sim.record import _process_start_ticks
 
     run_dir = tmp_path / "killed"
     host = subprocess.Popen([sys.executable, "-c", HOST_THAT_HANGS_AT_STEP_25, str(run_dir)], cwd=REPO,
@@ -496,7 +496,7 @@ def test_host_killed_with_sigkill_the_flight_software_leaves_and_the_record_says
 def test_rvd_run_ideal_three_times_gives_the_same_record(tmp_path):
     dirs = [tmp_path / f"run{i}" for i in range(3)]
     for d in dirs:
-        r = subprocess.run([sys.executable, "-m", "host_sim.cli", "case1_vbar", "--truth", "cw", "--ideal", "-q",
+        r = subprocess.run([sys.executable, "-m", "rvd_pil.host_sim.cli", "case1_vbar", "--truth", "cw", "--ideal", "-q",
                             "--out", str(d)], cwd=REPO, capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, r.stdout + r.stderr
         assert "delay_model" not in r.stdout.split("depends on this host's speed:", 1)[1].splitlines()[0]

@@ -10,12 +10,12 @@ import signal
 import numpy as np
 import pytest
 
-import flight_sw
+from rvd_pil import flight_sw
 from support.flight_reference import flight_params
-from host_sim import messages as msg
-from host_sim.pil import run_pil
-from host_sim.record import load_events, load_run
-from host_sim.server import ServerConfig
+from rvd_pil.host_sim import messages as msg
+from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.record import load_events, load_run
+from rvd_pil.host_sim.server import ServerConfig
 
 IDEAL = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
 

@@ -1,5 +1,5 @@
-"""A small PIL campaign (bench/campaign.py) on the Raspberry Pi 3 target end to end: the timing run and
-the ideal Case 1 checks are priced by the cycle model, and the report (bench/report.py) carries the
+"""A small PIL campaign (rvd_pil/bench/campaign.py) on the Raspberry Pi 3 target end to end: the timing run and
+the ideal Case 1 checks are priced by the cycle model, and the report (rvd_pil/bench/report.py) carries the
 cycles, the interval, the old CPI figure beside them and the timing-model section.
 
 Independent truths: the instruction counter (the block profiler's total per solve must equal it),
@@ -13,7 +13,7 @@ import shutil
 
 import pytest
 
-from qemu import cycles, plugin, targets
+from rvd_pil.qemu import cycles, plugin, targets
 
 pytestmark = [pytest.mark.qemu, pytest.mark.slow]
 
@@ -21,11 +21,11 @@ pytestmark = [pytest.mark.qemu, pytest.mark.slow]
 def test_campaign_report_carries_cycle_estimates(tmp_path):
     fetch = os.environ.get("RVD_QEMU_FETCH") == "1"
     if plugin.build(download=fetch) is None or plugin.build_profile(download=fetch) is None:
-        pytest.skip("plugins not built: run `python -m qemu prepare` (or set RVD_QEMU_FETCH=1)")
+        pytest.skip("plugins not built: run `python -m rvd_pil.qemu prepare` (or set RVD_QEMU_FETCH=1)")
     if shutil.which(cycles.LLVM_MCA) is None or not shutil.which(targets.load("rpi3").compiler):
         pytest.skip("llvm-15 or the aarch64 cross compiler missing: tools/install-deps pil")
-    from bench import report
-    from bench.campaign import Campaign, Spec
+    from rvd_pil.bench import report
+    from rvd_pil.bench.campaign import Campaign, Spec
 
     spec = Spec(targets=["rpi3"], scenarios=["case1_vbar"], horizon_sets=[(15, 5, 5)], system_mode=False)
     info = Campaign(spec, tmp_path).target("rpi3")

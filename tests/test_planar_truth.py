@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from host_sim import scenario as scenarios
-from host_sim.simulator import Simulator
+from rvd_pil.host_sim import scenario as scenarios
+from rvd_pil.host_sim.simulator import Simulator
 
 BASE = {
     "name": "table", "dynamics": "planar", "timeout_s": 100.0,

@@ -7,7 +7,7 @@ own instructions), to the instruction. Counts must also reach the guest (the slo
 writes) equal to the plugin's own log, and repeat exactly from run to run.
 
 Needs the plugin, built against the qemu-plugin.h of Debian's qemu source package (a download
-that belongs to `make pil`): skipped until `python -m qemu prepare` has run, or set
+that belongs to `make pil`): skipped until `python -m rvd_pil.qemu prepare` has run, or set
 RVD_QEMU_FETCH=1 to let the test fetch it.
 """
 from __future__ import annotations
@@ -19,8 +19,8 @@ import subprocess
 
 import pytest
 
-from qemu import build, plugin, targets, user
-from qemu.plugin import InsnCounter
+from rvd_pil.qemu import build, plugin, targets, user
+from rvd_pil.qemu.plugin import InsnCounter
 
 pytestmark = pytest.mark.qemu
 
@@ -32,7 +32,7 @@ STEPS = 4
 def plugin_lib():
     lib = plugin.build(download=os.environ.get("RVD_QEMU_FETCH") == "1")
     if lib is None:
-        pytest.skip("counting plugin not built: run `python -m qemu prepare` (or set RVD_QEMU_FETCH=1)")
+        pytest.skip("counting plugin not built: run `python -m rvd_pil.qemu prepare` (or set RVD_QEMU_FETCH=1)")
     return lib
 
 

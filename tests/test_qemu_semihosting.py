@@ -1,9 +1,9 @@
 """The semihosting link: the bridge between two host FIFOs and a TCP endpoint
-(qemu/semihosting_link.py), and Case 1 through it in QEMU system mode, where the guest clock stands
+(rvd_pil/qemu/semihosting_link.py), and Case 1 through it in QEMU system mode, where the guest clock stands
 still while the host computes, so that two runs give the same in-guest solve times at every step.
 
 The system-mode part needs the ARM kernels and busybox (downloads that belong to `make pil`):
-skipped until `python -m qemu prepare` has run, or set RVD_QEMU_FETCH=1 to let the test fetch them.
+skipped until `python -m rvd_pil.qemu prepare` has run, or set RVD_QEMU_FETCH=1 to let the test fetch them.
 """
 from __future__ import annotations
 
@@ -17,11 +17,11 @@ import threading
 import numpy as np
 import pytest
 
-import flight_sw
-from host_sim.pil import run_pil
-from host_sim.record import load_run
-from host_sim.server import ServerConfig
-from qemu import build, semihosting_link, system
+from rvd_pil import flight_sw
+from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.record import load_run
+from rvd_pil.host_sim.server import ServerConfig
+from rvd_pil.qemu import build, semihosting_link, system
 from support.flight_reference import flight_params
 from support.system_mode import system_mode_or_skip
 
@@ -89,7 +89,7 @@ def test_bridge_hands_the_guest_whole_batches_however_tcp_splits_them():
 
 def test_bridge_exits_with_the_emulator_and_its_status(tmp_path):
     # The "emulator" never opens the FIFOs: the bridge must not wait for them after it is gone.
-    proc = subprocess.run([sys.executable, "-m", "qemu.semihosting_link", "--connect", "127.0.0.1:9",
+    proc = subprocess.run([sys.executable, "-m", "rvd_pil.qemu.semihosting_link", "--connect", "127.0.0.1:9",
                            "--dir", str(tmp_path / "link"), "--", sys.executable, "-c", "raise SystemExit(3)"],
                           timeout=30)
     assert proc.returncode == 3
@@ -107,7 +107,7 @@ def test_bridge_stops_an_emulator_that_outlives_the_host(tmp_path):
     guest = ("import os, time, sys; d = sys.argv[1]; "
              "r = os.open(d + '/to-guest', os.O_RDONLY); w = os.open(d + '/from-guest', os.O_WRONLY); "
              "assert os.read(r, 1) == b''; time.sleep(120)")
-    proc = subprocess.run([sys.executable, "-m", "qemu.semihosting_link", "--connect",
+    proc = subprocess.run([sys.executable, "-m", "rvd_pil.qemu.semihosting_link", "--connect",
                            f"127.0.0.1:{server.getsockname()[1]}", "--dir", str(link), "--grace-s", "0.5", "--",
                            sys.executable, "-c", guest, str(link)], capture_output=True, text=True, timeout=60)
     server.close()
@@ -150,7 +150,7 @@ def test_the_link_key_reaches_the_guest_as_a_0600_file_and_never_its_command_lin
     """The bridge writes $RVD_LINK_KEY to DIR/link-key (0600), keeps it out of QEMU's environment,
     and removes the file once the guest opened the link (here: a stand-in guest that reads the key
     and reports what it saw, then opens the FIFOs the way the flight software does)."""
-    from host_sim.messages import KEY_ENV
+    from rvd_pil.host_sim.messages import KEY_ENV
 
     server = socket.create_server(("127.0.0.1", 0))
     threading.Thread(target=lambda: server.accept()[0].close(), daemon=True).start()
@@ -166,7 +166,7 @@ def test_the_link_key_reaches_the_guest_as_a_0600_file_and_never_its_command_lin
     # The guest's arguments as flight_command builds them carry the key file's name, not the key.
     args = semihosting_link.flight_command(lambda a: ["qemu", *a], link)(["--connect", "tcp/127.0.0.1:7447", "--run", "r"])
     assert semihosting_link.GUEST_KEY_ARGS == args[-2:] and key not in " ".join(args)
-    proc = subprocess.run([sys.executable, "-m", "qemu.semihosting_link", "--connect",
+    proc = subprocess.run([sys.executable, "-m", "rvd_pil.qemu.semihosting_link", "--connect",
                            f"127.0.0.1:{server.getsockname()[1]}", "--dir", str(link), "--grace-s", "5", "--",
                            sys.executable, "-c", guest, str(link)],
                           env={**os.environ, KEY_ENV: key}, capture_output=True, text=True, timeout=60)

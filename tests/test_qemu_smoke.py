@@ -13,7 +13,7 @@ import threading
 
 import pytest
 
-from qemu import build, targets, user
+from rvd_pil.qemu import build, targets, user
 
 pytestmark = pytest.mark.qemu
 
@@ -164,9 +164,9 @@ def test_case1_closed_loop_under_qemu_user_equals_native(q7s_build, flight_exe, 
     qemu-arm -cpu cortex-a9: Case 1 in the ideal setting docks with the native run's delta-v to
     1e-6 m/s and the same number of steps. (Cortex-A9 has no fused multiply-add and its libm is
     another build, so the last bits differ: the agreement is not bit for bit.)"""
-    from host_sim.pil import run_pil
-    from host_sim.record import load_run
-    from host_sim.server import ServerConfig
+    from rvd_pil.host_sim.pil import run_pil
+    from rvd_pil.host_sim.record import load_run
+    from rvd_pil.host_sim.server import ServerConfig
 
     target, bdir, _, build_error = q7s_build
     assert build_error is None, build_error

@@ -7,7 +7,7 @@ identical readings in two boots; the guest reaches a TCP echo server on the host
 by address and by the name rvd-host from the initramfs's /etc/hosts.
 
 Needs the ARM kernels and busybox (downloads that belong to `make pil`): skipped until
-`python -m qemu prepare` has run, or set RVD_QEMU_FETCH=1 to let the test fetch them.
+`python -m rvd_pil.qemu prepare` has run, or set RVD_QEMU_FETCH=1 to let the test fetch them.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import threading
 
 import pytest
 
-from qemu import build, system, targets
+from rvd_pil.qemu import build, system, targets
 from support.system_mode import system_mode_or_skip
 
 pytestmark = [pytest.mark.qemu, pytest.mark.slow]

@@ -1,4 +1,4 @@
-"""The PIL report (bench/report.py) on a synthetic campaign whose figures are known beforehand
+"""The PIL report (rvd_pil/bench/report.py) on a synthetic campaign whose figures are known beforehand
 (tests/report_campaign.py): the verdict rows, their margins and pass/fail, readable numbers,
 headings in words, the checks as a table, provenance, and a second campaign's runs kept out.
 The page itself is checked in a real headless Chromium in tests/test_report_browser.py."""
@@ -10,7 +10,7 @@ import shutil
 
 import pytest
 
-from bench import report
+from rvd_pil.bench import report
 import report_campaign
 
 
@@ -120,7 +120,7 @@ def test_numbers_are_readable(value, text):
 def test_second_campaign_never_mixes_with_the_first(tmp_path):
     """A folder's report reads only the runs its campaign.json lists; the campaign refuses a folder
     that holds another campaign, and --replace clears the old runs first."""
-    from bench import campaign
+    from rvd_pil.bench import campaign
 
     report_campaign.make(tmp_path)
     stray = tmp_path / "runs" / "beaglebone" / "old-run"
@@ -148,7 +148,7 @@ def test_second_campaign_never_mixes_with_the_first(tmp_path):
 
 
 def test_runs_of_no_campaign_are_refused(tmp_path):
-    from bench import campaign
+    from rvd_pil.bench import campaign
 
     report_campaign.make(tmp_path)
     (tmp_path / "campaign.json").unlink()

@@ -1,5 +1,5 @@
 """The PIL report in a real headless Chromium (Debian package `chromium`, driven over the DevTools
-protocol by bench/browser.py): at 1400 px the verdict table is visible whole without horizontal
+protocol by rvd_pil/bench/browser.py): at 1400 px the verdict table is visible whole without horizontal
 scrolling, no script error occurs, and a click on a heading sorts the table by that column.
 A 1400 px screenshot is kept beside the report (report-1400px.png)."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ import struct
 import pytest
 
 import report_campaign
-from bench import browser, report
+from rvd_pil.bench import browser, report
 
 pytestmark = pytest.mark.skipif(browser.find_chromium() is None,
                                 reason="chromium missing: tools/install-deps test installs it")

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-import flight_sw
+from rvd_pil import flight_sw
 from support.qp_forms import OcpQpData, condense, from_dict, solve_proxsuite, to_stacked
 
 pytestmark = pytest.mark.slow  # minutes: scheduled first (tests/conftest.py)

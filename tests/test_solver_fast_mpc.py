@@ -4,7 +4,7 @@ plus slack inputs, box and halfspace rows, horizons 5..45."""
 import numpy as np
 import pytest
 
-import flight_sw
+from rvd_pil import flight_sw
 from support.qp_forms import (
     PHASES, OcpQpData, approach_qp, docking_qp, load_qp_set, random_mpc_qp, rendezvous_qp, save_qp_set,
     solve_proxsuite, with_reach_row)
@@ -255,7 +255,7 @@ def test_qp_set_file_roundtrip(tmp_path):
 def test_bench_runs_on_a_qp_set_file(tmp_path, capsys):
     """The benchmark's table on a tiny QP-set file: every solver's row is there and agrees with
     the reference (no speed is asserted)."""
-    from bench import solvers
+    from rvd_pil.bench import solvers
     rng = np.random.default_rng(8)
     path = tmp_path / "two.npz"
     save_qp_set(path, [docking_qp(5, rng), docking_qp(5, rng)])

@@ -17,15 +17,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from host_sim.record import load_events, load_run
-from studies import OwnershipError, grid, report_study, run_study, spec
-from studies.aggregate import frames_equal
-from studies.metrics import WALL_TIME_METRICS, quadrant, safety
+from rvd_pil.host_sim.record import load_events, load_run
+from rvd_pil.studies import OwnershipError, grid, report_study, run_study, spec
+from rvd_pil.studies.aggregate import frames_equal
+from rvd_pil.studies.metrics import WALL_TIME_METRICS, quadrant, safety
 
 pytestmark = pytest.mark.slow  # minutes: scheduled first (tests/conftest.py)
 
 ROOT = Path(__file__).resolve().parent.parent
-RVD_STUDY = [sys.executable, "-m", "studies.cli"]
+RVD_STUDY = [sys.executable, "-m", "rvd_pil.studies.cli"]
 IDEAL = """
 [model]
 truth = "cw"
@@ -446,7 +446,7 @@ def test_qemu_user_study_counts_instructions_that_repeat_and_reports_timing(tmp_
     s = res.solves
     assert len(s) > 50 and (s["instructions"] > 0).all()
     # estimated target time = instructions x CPI / f_clk of the registry's Cortex-A9 model
-    from qemu import targets
+    from rvd_pil.qemu import targets
 
     t = targets.load("q7s")
     np.testing.assert_allclose(s["target_us_nominal"], s["instructions"] * t.cpi.nominal / t.clock_hz * 1e6, rtol=1e-12)

@@ -38,7 +38,7 @@ The run's link key (64 hex digits) comes from $RVD_LINK_KEY or --key-file, never
 Link
   --connect ENDPOINT        Zenoh endpoint of the host simulator (default tcp/127.0.0.1:7447;
                             under QEMU system mode the host is tcp/10.0.2.2:PORT, or
-                            semihosting/DIR: host FIFOs, see qemu/semihosting_link.py)
+                            semihosting/DIR: host FIFOs, see rvd_pil/qemu/semihosting_link.py)
   --run RUN_ID              the run id: 1-64 characters from A-Z a-z 0-9 _ -
   --key-file PATH           read the link key from PATH (mode 0600, ours), or from a host file
                             through semihosting with semihosting/PATH (QEMU system mode)

@@ -1,5 +1,5 @@
 // Guest side of instruction counting: marks the start and end of each solve so that the QEMU
-// plugin qemu/plugin/insn_count.c can count the instructions in between and write the count back
+// plugin rvd_pil/qemu/plugin/insn_count.c can count the instructions in between and write the count back
 // into this object, from where it travels in the flight software's own telemetry.
 //
 //   rvd::SolveMarker marker;          // on by default on ARM builds, off on the host

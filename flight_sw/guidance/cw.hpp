@@ -11,7 +11,7 @@ using Vector6d = Eigen::Matrix<double, 6, 1>;
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
 using Matrix63d = Eigen::Matrix<double, 6, 3>;
 
-// The same constants as host_sim/constants.py (JGM-3 / EGM96 values), so that the guidance's CW model and
+// The same constants as rvd_pil/host_sim/constants.py (JGM-3 / EGM96 values), so that the guidance's CW model and
 // the host simulator's CW truth have bit-for-bit the same mean motion.
 constexpr double kEarthMu_m3_s2 = 3.986004415e14;
 constexpr double kEarthRadius_m = 6378136.3;

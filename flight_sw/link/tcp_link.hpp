@@ -2,7 +2,7 @@
 // batches (u16 little-endian length, then the batch: see flight_sw/link/README.md), non-blocking socket
 // with poll()-based waits. The same byte stream can also run through ARM semihosting
 // ("semihosting/<host dir>": two FIFOs on the host, <dir>/to-guest and <dir>/from-guest, that
-// qemu/semihosting_link.py joins to the host's TCP endpoint), for QEMU system-mode runs whose guest
+// rvd_pil/qemu/semihosting_link.py joins to the host's TCP endpoint), for QEMU system-mode runs whose guest
 // clock must stand still while the host computes (semihosting.hpp). Every call takes a timeout
 // (negative: wait without limit); semihosting reads can only wait without limit or not at all.
 // The receive buffer is allocated once.

@@ -1,6 +1,6 @@
 // Python binding of the flight application's per-message logic (flight_sw/app): a FlightApp built
 // from the flight executable's own options, fed encoded nav messages, answering encoded cmd
-// messages, without a link. The in-process path of the studies (studies/inprocess.py) serves it
+// messages, without a link. The in-process path of the studies (rvd_pil/studies/inprocess.py) serves it
 // from the host simulator, so it flies what the executable flies, message for message.
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>

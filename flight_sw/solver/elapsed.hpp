@@ -1,5 +1,5 @@
 // Wall time in microseconds from steady_clock, converted by instructions that do not depend on the
-// value: the deadline checks run inside the counted guidance step (qemu/README.md, "Cycle model"),
+// value: the deadline checks run inside the counted guidance step (rvd_pil/qemu/README.md, "Cycle model"),
 // whose instructions and cycles must repeat from run to run although the clock's readings do not.
 //
 // Armv7's VFP has no 64-bit integer to double conversion, so `duration<double, micro>` calls

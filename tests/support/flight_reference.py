@@ -1,5 +1,5 @@
 """The guidance parameters the flight executable runs with, for in-process references."""
-import flight_sw
+from rvd_pil import flight_sw
 
 
 def flight_params() -> "flight_sw.GuidanceParams":

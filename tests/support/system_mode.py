@@ -5,7 +5,7 @@ import shutil
 
 import pytest
 
-from qemu import system, targets
+from rvd_pil.qemu import system, targets
 
 
 def system_mode_or_skip(name: str):
@@ -16,5 +16,5 @@ def system_mode_or_skip(name: str):
         pytest.skip(f"{target.compiler} or {target.qemu_system} missing: run tools/install-deps pil")
     img = system.image(target, download=os.environ.get("RVD_QEMU_FETCH") == "1")
     if img is None:
-        pytest.skip("system-mode image not built: run `python -m qemu prepare` (or set RVD_QEMU_FETCH=1)")
+        pytest.skip("system-mode image not built: run `python -m rvd_pil.qemu prepare` (or set RVD_QEMU_FETCH=1)")
     return target, img

@@ -1,5 +1,5 @@
 // link_auth_bench: what the message tag costs the flight computer, per message type. Driven by
-// bench/link_auth.py, natively (wall time) and under QEMU user mode with the instruction-counting
+// rvd_pil/bench/link_auth.py, natively (wall time) and under QEMU user mode with the instruction-counting
 // plugin (instructions, through the same markers the solves use).
 //
 //   link_auth_bench [N]     N messages per measurement (default 2000)

@@ -1,5 +1,5 @@
 // zenoh_probe: a small command-line Zenoh client built on rvd::link::ZenohSession, driven by the
-// Python interop tests (tests/test_link_zenoh_*.py) and by bench/link_latency.py.
+// Python interop tests (tests/test_link_zenoh_*.py) and by rvd_pil/bench/link_latency.py.
 //
 //   zenoh_probe --connect tcp/127.0.0.1:7447 [options]
 //     --sub KEY           subscribe to KEY (repeatable; wildcards allowed)

@@ -1,0 +1,425 @@
+"""Side-by-side solve times: flight_sw's Fast MPC solver vs ProxSuite, OSQP, DAQP, PIQP and Clarabel on
+the same MPC QPs, measured in one run. Prints figures; asserts nothing about speed.
+
+    python -m rvd_pil.bench.solvers                      # synthetic QPs per guidance phase and horizon
+    python -m rvd_pil.bench.solvers --qp-set run.npz     # a recorded QP set (format: tests/support/qp_forms.py)
+    python -m rvd_pil.bench.solvers --quick              # fewer QPs and repeats (a smoke run)
+    python -m rvd_pil.bench.solvers --record-cases real.npz  # record the closed-loop QPs of Cases 1-3, bench them
+    python -m rvd_pil.bench.solvers --closed-loop-set cl.npz --per-group 40   # the project's closed-loop set:
+        # Cases 1-3 and seeded random starts (rotating targets among them) at the three horizon sets,
+        # sampled per phase and horizon, written to cl.npz, then benched
+    python -m rvd_pil.bench.solvers --warm-cold                # closed loops solved warm and cold side by side
+
+Accuracy is matched, not assumed: every solver's objective is compared with a reference (ProxSuite,
+eps_abs 1e-10, or looser where it cannot get there; Clarabel at 1e-10 where ProxSuite fails) and
+disagreements are counted in the table. QPs the reference finds infeasible are listed, not timed.
+
+Clocks (each solver's own, setup excluded; microseconds):
+  flight_sw          steady_clock around FastMpcSolver::solve() in C++ (Info::solve_time_us); the
+                     workspace is allocated once before, as in flight; cold start (no warm start)
+  proxsuite sparse/  results.info.solve_time (compute_timings=True): solve after init()
+  proxsuite dense
+  osqp               info.solve_time + info.polish_time (setup_time excluded)
+  daqp               info['solve_time'] (setup_time excluded); on the condensed QP (states
+                     eliminated; condensing is not timed)
+  piqp               result.info.solve_time (setup_time excluded), sparse interface
+  clarabel           solution.solve_time (the DefaultSolver constructor does the setup)
+  hpipm              wall time of the one d_ocp_qp_ipm_solve call minus the measured ctypes call
+                     overhead (rvd_pil/bench/hpipm.py: casadi's bundled HPIPM/BLASFEO, its own OCP form
+                     with box bounds, native soft constraints; set-up not timed); modes SPEED
+                     (hpipm) and ROBUST (hpipm-robust)
+Tolerances: flight_sw tol 1e-8 (relative residuals and duality gap); ProxSuite eps_abs 1e-8,
+eps_rel 0; PIQP eps_abs 1e-8 eps_rel 1e-9 (defaults); Clarabel tol_gap_abs/rel 1e-8, tol_feas 1e-8
+(defaults); DAQP primal/dual tolerances 1e-6 with automatic proximal regularisation (active set:
+exact up to rounding once the active set is right); OSQP eps_abs = eps_rel = 1e-6 with polishing
+(ADMM does not reach 1e-8 in practical iteration counts; the polished solution usually is exact);
+HPIPM tol_stat = tol_eq = tol_ineq = tol_comp = 1e-6 (absolute; 1e-8 only costs it iterations).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections import defaultdict
+
+import numpy as np
+import scipy.sparse as sp
+
+from support.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, condense, from_dict, load_qp_set,
+                            save_qp_set, solve_proxsuite, to_stacked)
+
+AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |f*|)
+
+
+# ------------------------------------------------------------------------------------------------
+# One function per solver: (qp, prepared forms) -> (objective, status, solve time in us, setup time
+# in us as the solver reports it, nan if it does not)
+
+def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
+    from rvd_pil import flight_sw
+    solver = forms.setdefault(("flight_sw", mode), flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode=mode, tol=1e-8,
+                                                                      warm_start=False))
+    r = solver.solve(*qp.args(), **qp.kw())
+    return r.objective, r.status, r.solve_time_us, math.nan
+
+
+def run_proxsuite(qp: OcpQpData, forms: dict, dense: bool):
+    import proxsuite
+    s = forms["stacked"]
+    nz, neq, nin = s.H.shape[0], s.Aeq.shape[0], s.Cin.shape[0]
+    if dense:
+        solver = proxsuite.proxqp.dense.QP(nz, neq, nin)
+        mats = (forms["H_dense"], s.g, forms["Aeq_dense"], s.beq, forms["Cin_dense"])
+    else:
+        solver = proxsuite.proxqp.sparse.QP(nz, neq, nin)
+        mats = (s.H, s.g, s.Aeq, s.beq, s.Cin)
+    solver.settings.eps_abs = 1e-8
+    solver.settings.eps_rel = 0.0
+    solver.settings.verbose = False
+    solver.settings.compute_timings = True
+    solver.init(*mats, np.full(nin, -1e20), s.din)
+    solver.solve()
+    info = solver.results.info
+    ok = info.status == proxsuite.proxqp.PROXQP_SOLVED
+    x, u = s.unstack(np.asarray(solver.results.x), qp.x0)
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else str(info.status)), float(info.solve_time), \
+        float(info.setup_time)
+
+
+def run_osqp(qp: OcpQpData, forms: dict):
+    import osqp
+    s = forms["stacked"]
+    A = sp.vstack([s.Aeq, s.Cin]).tocsc()
+    lower = np.concatenate([s.beq, np.full(s.Cin.shape[0], -np.inf)])
+    upper = np.concatenate([s.beq, s.din])
+    solver = osqp.OSQP()
+    solver.setup(sp.triu(s.H).tocsc(), s.g, A, lower, upper, eps_abs=1e-6, eps_rel=1e-6, polishing=True,
+                 max_iter=200000, verbose=False)
+    res = solver.solve()
+    ok = res.info.status in ("solved", "solved inaccurate")
+    x, u = s.unstack(np.asarray(res.x), qp.x0) if res.x is not None else (None, None)
+    t_us = (res.info.solve_time + res.info.polish_time) * 1e6
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else res.info.status), t_us, \
+        res.info.setup_time * 1e6
+
+
+def run_daqp(qp: OcpQpData, forms: dict):
+    import daqp
+    c = forms["condensed"]
+    m = len(c.h)
+    U, _, exitflag, info = daqp.solve(c.H, c.g, c.G, c.h, np.full(m, -1e30), np.zeros(m, dtype=np.int32),
+                                      eps_prox=-1.0, primal_tol=1e-6, dual_tol=1e-6, iter_limit=100000)
+    ok = exitflag == 1
+    x, u = c.unstack(np.asarray(U), qp)
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else f"exitflag {exitflag}"), \
+        info["solve_time"] * 1e6, info["setup_time"] * 1e6
+
+
+def run_piqp(qp: OcpQpData, forms: dict):
+    import piqp
+    s = forms["stacked"]
+    solver = piqp.SparseSolver()
+    solver.settings.verbose = False
+    solver.settings.compute_timings = True
+    solver.setup(s.H, s.g, s.Aeq, s.beq, s.Cin, None, s.din)
+    status = solver.solve()
+    ok = status == piqp.PIQP_SOLVED
+    x, u = s.unstack(np.asarray(solver.result.x), qp.x0)
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else str(status)), \
+        solver.result.info.solve_time * 1e6, solver.result.info.setup_time * 1e6
+
+
+def run_clarabel(qp: OcpQpData, forms: dict):
+    import clarabel
+    s = forms["stacked"]
+    A = sp.vstack([s.Aeq, s.Cin]).tocsc()
+    b = np.concatenate([s.beq, s.din])
+    cones = [clarabel.ZeroConeT(s.Aeq.shape[0]), clarabel.NonnegativeConeT(s.Cin.shape[0])]
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    solver = clarabel.DefaultSolver(sp.triu(s.H).tocsc(), s.g, A, b, cones, settings)
+    sol = solver.solve()
+    ok = str(sol.status) == "Solved"
+    x, u = s.unstack(np.asarray(sol.x), qp.x0)
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else str(sol.status)), sol.solve_time * 1e6, \
+        math.nan
+
+
+def run_hpipm(qp: OcpQpData, forms: dict, mode: str = "speed"):
+    from rvd_pil.bench.hpipm import HpipmSolver
+    solver = forms.get(("hpipm", mode))
+    if solver is None:
+        solver = forms[("hpipm", mode)] = HpipmSolver(qp, mode=mode, tol=1e-6)
+    st, _it, t_us, x, u = solver.solve()
+    ok = st == 0
+    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else f"status {st}"), t_us, math.nan
+
+
+SOLVERS = {
+    "flight_sw": run_flight_sw,
+    "hpipm": run_hpipm,
+    "hpipm-robust": lambda qp, f: run_hpipm(qp, f, mode="robust"),
+    "proxsuite-sparse": lambda qp, f: run_proxsuite(qp, f, dense=False),
+    "proxsuite-dense": lambda qp, f: run_proxsuite(qp, f, dense=True),
+    "osqp": run_osqp,
+    "daqp": run_daqp,
+    "piqp": run_piqp,
+    "clarabel": run_clarabel,
+}
+
+
+def prepare(qp: OcpQpData) -> dict:
+    s = to_stacked(qp)
+    return {"stacked": s, "condensed": condense(qp), "H_dense": s.H.toarray(), "Aeq_dense": s.Aeq.toarray(),
+            "Cin_dense": s.Cin.toarray()}
+
+
+def reference(qp: OcpQpData, forms: dict):
+    """The objective the others are checked against: ProxSuite at eps_abs 1e-10 (1e-9, 1e-8 where it
+    cannot get there); where ProxSuite fails or calls the QP infeasible, Clarabel at 1e-10 (on real
+    closed-loop QPs ProxSuite calls some feasible QPs infeasible). Returns (result, who)."""
+    for eps in (1e-10, 1e-9, 1e-8):
+        ref = solve_proxsuite(qp, eps_abs=eps, stacked=forms["stacked"], max_iter=20000)
+        if ref.status == "solved":
+            return ref, f"proxsuite {eps:g}"
+    import clarabel
+    s = forms["stacked"]
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = 1e-10
+    sol = clarabel.DefaultSolver(sp.triu(s.H).tocsc(), s.g, sp.vstack([s.Aeq, s.Cin]).tocsc(),
+                                 np.concatenate([s.beq, s.din]),
+                                 [clarabel.ZeroConeT(s.Aeq.shape[0]), clarabel.NonnegativeConeT(s.Cin.shape[0])],
+                                 settings).solve()
+    status = str(sol.status)
+    if status in ("Solved", "AlmostSolved"):
+        x, u = s.unstack(np.asarray(sol.x), qp.x0)
+        return PeerResult("solved", qp.objective(x, u), x, u, math.nan), "clarabel 1e-10"
+    return PeerResult("infeasible" if "Infeasible" in status else status, math.nan, None, None, math.nan), \
+        "proxsuite+clarabel"
+
+
+# ------------------------------------------------------------------------------------------------
+
+def synthetic_set(per_group: int, seed: int) -> list[OcpQpData]:
+    """per_group feasible QPs per (phase, horizon) of the dissertation's timing study."""
+    rng = np.random.default_rng(seed)
+    qps = []
+    for phase, horizons in PHASE_HORIZONS.items():
+        for N in horizons:
+            made = 0
+            for _ in range(20 * per_group):
+                qp = PHASES[phase](N, rng)
+                if solve_proxsuite(qp, eps_abs=1e-8, max_iter=20000).status == "solved":
+                    qps.append(qp)
+                    made += 1
+                if made == per_group:
+                    break
+    return qps
+
+
+def record_cases(path: str, cases=(1, 2, 3)) -> list[OcpQpData]:
+    """Every QP the guidance solved in closed loops of the dissertation's cases (CW plant, default
+    GuidanceParams), written as a QP-set file: the real closed-loop set."""
+    from rvd_pil import flight_sw
+    params = flight_sw.GuidanceParams()
+    qps = []
+    for case in cases:
+        c = flight_sw.dissertation_case(case)
+        run = flight_sw.run_closed_loop(params, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"], record_qps=True)
+        for rec in run.qps:
+            phase = str(rec["phase"]).split(".")[-1].lower()
+            qps.append(from_dict(rec["qp"], phase))
+    save_qp_set(path, qps)
+    return qps
+
+
+def closed_loop_set(path: str, per_group: int, seed: int = 0, random_starts: int = 12) -> list[OcpQpData]:
+    """The project's closed-loop QP set: every QP the guidance solves in closed loops (CW plant, in
+    process) of Cases 1-3 and `random_starts` seeded random starts (rvd_pil.host_sim.scenario.random_scenario;
+    every third one with a target spinning at 0.1-0.3 deg/s about a random body axis), at the three
+    horizon sets (rendezvous 15/30/45, approach 5/15/30, docking 5/12/30); per_group QPs drawn per
+    phase and horizon. Written to `path` (tests/support/qp_forms.py format)."""
+    from rvd_pil import flight_sw
+    from rvd_pil.host_sim.scenario import random_scenario
+    rng = np.random.default_rng(seed)
+    starts = []
+    for case in (1, 2, 3):
+        c = flight_sw.dissertation_case(case)
+        starts.append((f"case{case}", c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"]))
+    for k in range(random_starts):
+        sc = random_scenario(1000 + k)
+        x0 = np.concatenate([sc.chaser.position_lvlh_m, sc.chaser.velocity_lvlh_mps])
+        q = rng.standard_normal(4)
+        q /= np.linalg.norm(q)
+        w = np.zeros(3)
+        if k % 3 == 0:
+            axis = rng.standard_normal(3)
+            w = np.deg2rad(rng.uniform(0.1, 0.3)) * axis / np.linalg.norm(axis)
+        starts.append((f"random{k}", x0, q, w))
+    groups: dict = defaultdict(list)
+    names = {1: "rendezvous", 2: "approach", 3: "docking"}
+    for horizons in ((15, 5, 5), (30, 15, 12), (45, 30, 30)):
+        params = flight_sw.GuidanceParams()
+        params.rendezvous.N, params.approach.N, params.docking.N = horizons
+        for label, x0, q, w in starts:
+            run = flight_sw.run_closed_loop(params, x0, q, w, record_qps=True)
+            for rec in run.qps:
+                phase = int(rec["phase"])
+                groups[(names[phase], horizons[phase - 1])].append(from_dict(rec["qp"], names[phase]))
+    qps = []
+    for key in sorted(groups):
+        pool = groups[key]
+        pick = rng.choice(len(pool), size=min(per_group, len(pool)), replace=False)
+        qps += [pool[i] for i in sorted(pick)]
+    save_qp_set(path, qps)
+    return qps
+
+
+def warm_cold(seed: int = 0, random_starts: int = 6) -> None:
+    """Closed loops (CW plant, in process) run twice per start, warm-started and cold: iterations and
+    solve times per phase side by side (the same loop, interleaved by start)."""
+    from rvd_pil import flight_sw
+    from rvd_pil.host_sim.scenario import random_scenario
+    rows = defaultdict(lambda: defaultdict(list))
+    for horizons in ((15, 5, 5), (30, 15, 12), (45, 30, 30)):
+        starts = [flight_sw.dissertation_case(c) for c in (1, 2, 3)]
+        for k in range(random_starts):
+            sc = random_scenario(2000 + k)
+            starts.append({"x0": np.concatenate([sc.chaser.position_lvlh_m, sc.chaser.velocity_lvlh_mps]),
+                           "q_lvlh_body": np.array([0.7071067811865476, 0.0, 0.0, -0.7071067811865476]),
+                           "omega_body_rad_s": np.zeros(3)})
+        for c in starts:
+            for warm in (True, False):
+                params = flight_sw.GuidanceParams()
+                params.rendezvous.N, params.approach.N, params.docking.N = horizons
+                for ph in (params.rendezvous, params.approach, params.docking):
+                    ph.solver_warm_start = warm
+                run = flight_sw.run_closed_loop(params, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"])
+                for ph, it, t in zip(run.phase, run.iterations, run.solve_time_us):
+                    if int(ph) not in (1, 2, 3) or it == 0:  # docked, or no solve
+                        continue
+                    name = ("rendezvous", "approach", "docking")[int(ph) - 1]
+                    N = horizons[("rendezvous", "approach", "docking").index(name)]
+                    rows[(name, N)]["warm" if warm else "cold"].append((it, t))
+    print("closed loops warm vs cold (Cases 1-3 and random starts, CW plant), per phase and horizon")
+    print(f"{'phase':<11}{'N':>4}  {'solves':>6}  {'it warm':>8}{'it cold':>8}  {'t warm':>8}{'t cold':>8}  "
+          f"{'max it w/c':>11}  {'p90 t w/c':>15}  {'cold/warm t':>11}")
+    for key in sorted(rows, key=lambda k: (("rendezvous", "approach", "docking").index(k[0]), k[1])):
+        w, c = np.array(rows[key]["warm"]), np.array(rows[key]["cold"])
+        print(f"{key[0]:<11}{key[1]:>4}  {len(w):>6}  {np.mean(w[:, 0]):>8.1f}{np.mean(c[:, 0]):>8.1f}  "
+              f"{np.median(w[:, 1]):>8.1f}{np.median(c[:, 1]):>8.1f}  {int(w[:, 0].max()):>5}/{int(c[:, 0].max()):<5}  "
+              f"{np.percentile(w[:, 1], 90):>7.1f}/{np.percentile(c[:, 1], 90):<7.1f}  "
+              f"{np.median(c[:, 1]) / np.median(w[:, 1]):>11.2f}")
+    print("it = mean iterations per solve; t = median solve time [us] (host wall time, C++ clock); the warm "
+          "loop and the cold loop may fly slightly different trajectories (same QPs only at the first step)\n")
+
+
+def pct(values, q):
+    return float(np.percentile(values, q)) if len(values) else math.nan
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--qp-set", help="QP-set .npz file (tests/support/qp_forms.py format); default: synthetic")
+    ap.add_argument("--per-group", type=int, default=10, help="synthetic QPs per phase and horizon")
+    ap.add_argument("--repeats", type=int, default=5, help="timed solves per QP and solver")
+    ap.add_argument("--solvers", default=",".join(SOLVERS), help="comma-separated subset of " + ",".join(SOLVERS))
+    ap.add_argument("--quick", action="store_true", help="2 QPs per group, 2 repeats")
+    ap.add_argument("--record-cases", metavar="FILE",
+                    help="record every QP of closed loops of the dissertation's Cases 1-3 into FILE, then bench them")
+    ap.add_argument("--closed-loop-set", metavar="FILE",
+                    help="record the project's closed-loop set (Cases 1-3 + random starts, all horizons; "
+                         "--per-group QPs per phase and horizon) into FILE, then bench it")
+    ap.add_argument("--random-starts", type=int, default=12, help="random starts in --closed-loop-set")
+    ap.add_argument("--warm-cold", action="store_true", help="closed loops warm vs cold, then exit")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    if args.warm_cold:
+        warm_cold(args.seed)
+        return 0
+    if args.quick:
+        args.per_group, args.repeats = 2, 2
+    names = [n for n in args.solvers.split(",") if n]
+    unknown = set(names) - set(SOLVERS)
+    if unknown:
+        ap.error(f"unknown solvers: {sorted(unknown)}")
+
+    t0 = time.time()
+    if args.record_cases:
+        qps = record_cases(args.record_cases)
+        args.qp_set = args.record_cases
+    elif args.closed_loop_set:
+        qps = closed_loop_set(args.closed_loop_set, args.per_group, args.seed, args.random_starts)
+        args.qp_set = args.closed_loop_set
+    else:
+        qps = load_qp_set(args.qp_set) if args.qp_set else synthetic_set(args.per_group, args.seed)
+    print(f"{len(qps)} QPs from {args.qp_set or 'the synthetic MPC set'}; {args.repeats} timed solves per QP "
+          f"and solver; times in microseconds (each solver's own clock, see the module docstring)\n")
+
+    times = defaultdict(list)      # (phase, N, solver) -> solve times
+    setups = defaultdict(list)     # (phase, N, solver) -> setup times the solver reports
+    wrong = defaultdict(int)       # (phase, N, solver) -> objective disagreements / failures
+    worst = defaultdict(float)     # (phase, N, solver) -> worst relative objective difference
+    count = defaultdict(int)
+    used = defaultdict(int)        # which reference solved how many QPs
+    for qp in qps:
+        key = (qp.phase or "set", qp.N)
+        forms = prepare(qp)
+        ref, who = reference(qp, forms)
+        used[who] += 1
+        if ref.status != "solved":
+            ours = run_flight_sw(qp, forms)[1] if "flight_sw" in names else "-"
+            print(f"  skipped a {key} QP: the reference ({who}) says {ref.status}; flight_sw says {ours}")
+            continue
+        count[key] += 1
+        for name in names:
+            for rep in range(args.repeats):
+                obj, status, t_us, setup_us = SOLVERS[name](qp, forms)
+                times[key + (name,)].append(t_us)
+                setups[key + (name,)].append(setup_us)
+                if rep == 0:
+                    err = abs(obj - ref.objective) / max(1.0, abs(ref.objective)) if status == "solved" else math.inf
+                    worst[key + (name,)] = max(worst[key + (name,)], err)
+                    if not err <= AGREE_REL:
+                        wrong[key + (name,)] += 1
+
+    print("reference objectives: " + ", ".join(f"{who} {n}" for who, n in used.items()) + "\n")
+    groups = sorted(count, key=lambda k: (list(PHASE_HORIZONS).index(k[0]) if k[0] in PHASE_HORIZONS else 99, k[1]))
+    print(f"{'phase':<11}{'N':>4}  {'solver':<17}{'median':>10}{'p90':>10}{'p99':>10}{'ratio':>8}  {'worst rel. obj':>15}  "
+          f"{'bad':<6}{'setup (not in median)':>22}")
+    for key in groups:
+        ours = np.median(times[key + ("flight_sw",)]) if "flight_sw" in names else math.nan
+        for name in names:
+            t = times[key + (name,)]
+            med = np.median(t)
+            setup = np.median(setups[key + (name,)])
+            setup_txt = "-" if math.isnan(setup) else f"{setup:.1f}"
+            print(f"{key[0]:<11}{key[1]:>4}  {name:<17}{med:>10.1f}{pct(t, 90):>10.1f}{pct(t, 99):>10.1f}{med / ours:>8.2f}  "
+                  f"{worst[key + (name,)]:>15.1e}  {str(wrong[key + (name,)]) + '/' + str(count[key]):<6}{setup_txt:>22}")
+        print()
+    print("ratio = solver median / flight_sw median (above 1: flight_sw is faster); bad = objective off the "
+          f"reference by more than {AGREE_REL:g} relative, or not solved; setup = the solver's own setup time "
+          "(median), where it reports one (flight_sw allocates its workspace once per phase, before any solve)\n")
+
+    # Growth with the horizon: linear scaling gives N_max / N_min; the dissertation's CVXGEN gave
+    # 864/119 = 7.3 for rendezvous N 45 vs 15.
+    print("time growth with the horizon: t(N_max) / t(N_min) per phase (linear scaling = N_max / N_min)")
+    phases = sorted({k[0] for k in groups}, key=lambda p: list(PHASE_HORIZONS).index(p) if p in PHASE_HORIZONS else 99)
+    for phase in phases:
+        Ns = sorted(k[1] for k in groups if k[0] == phase)
+        if len(Ns) < 2:
+            continue
+        lo, hi = Ns[0], Ns[-1]
+        cells = []
+        for name in names:
+            r = np.median(times[(phase, hi, name)]) / np.median(times[(phase, lo, name)])
+            cells.append(f"{name} {r:.2f}")
+        print(f"  {phase} N {hi}/{lo} (linear {hi / lo:.1f}): " + ", ".join(cells))
+    print(f"\nbenchmark wall time {time.time() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
