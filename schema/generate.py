@@ -17,7 +17,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 SCHEMA = ROOT / "schema" / "rvd_messages.toml"
 CPP_OUT = ROOT / "flight_sw" / "link" / "messages.hpp"
-PY_OUT = ROOT / "host_sim" / "messages.py"
+PY_OUT = ROOT / "rvd_pil" / "host_sim" / "messages.py"
 
 # type -> (size in bytes, C++ type, struct code)
 SCALARS = {

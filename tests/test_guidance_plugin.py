@@ -21,7 +21,7 @@ from rvd_pil.host_sim.server import ServerConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 IDEAL = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
-CASE1 = (ROOT / "host_sim" / "scenarios" / "case1_vbar.toml").read_text()
+CASE1 = (ROOT / "rvd_pil" / "host_sim" / "scenarios" / "case1_vbar.toml").read_text()
 
 
 def _scenario(tmp_path, name, replace=(), extra=""):

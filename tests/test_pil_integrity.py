@@ -35,10 +35,11 @@ import zenoh
 from rvd_pil import flight_sw
 from support.flight_reference import flight_params
 from rvd_pil.host_sim import messages as msg
-from rvd_pil.host_sim.pil import REPO, find_flight_executable, run_pil
+from rvd_pil.host_sim.pil import find_flight_executable, run_pil
 from rvd_pil.host_sim.record import HOST_DIED, TIMING_COLUMNS, load_events, load_run, record_digest
 from rvd_pil.host_sim.server import ServerConfig
 
+REPO = Path(__file__).resolve().parents[1]
 IDEAL = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
 WAIT_S = 10.0  # bound of every wait on a condition below
 

@@ -31,9 +31,9 @@ import shutil
 import sys
 from pathlib import Path
 
+from rvd_pil import paths
 
-REPO = Path(__file__).resolve().parent.parent
-OUT = REPO / "build" / "calibration"
+OUT = paths.build_root() / "calibration"
 PERF_EVENTS = ("cycles:u", "instructions:u", "L1-dcache-load-misses:u")
 IDEAL = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
 

@@ -36,12 +36,11 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from rvd_pil import paths
 from rvd_pil.host_sim import scenario as scenarios
-from rvd_pil.host_sim.pil import run_pil
+from rvd_pil.host_sim.pil import find_flight_executable, run_pil
 from rvd_pil.host_sim.server import ServerConfig
 from rvd_pil.qemu.semihosting_link import HOST_ZENOH_ID
-
-REPO = Path(__file__).resolve().parent.parent
 
 # Horizon sets (rendezvous, approach, docking): together they cover the dissertation's ch. 6 test plan
 # (rendezvous 15/30/45, approach 5/15/30, docking 5/12/30) in three runs per scenario.
@@ -76,6 +75,12 @@ def _scenario_horizons(label: str) -> tuple[int, int, int]:
     """The horizons a scenario flies without --horizon: its [guidance] table's, else the defaults."""
     g = getattr(_scenario(label), "guidance", {}) or {}
     return tuple(int(g.get(f"{p}.N", g.get("phases.N", d))) for p, d in zip(("rendezvous", "approach", "docking"), DEFAULT_HORIZONS))
+
+
+def _shown(path: Path) -> Path:
+    """A build product's path as the log shows it: relative to the checkout when it is in one."""
+    root = paths.checkout()
+    return path.relative_to(root) if root is not None and path.is_relative_to(root) else path
 
 
 def _sha(path: Path) -> str:
@@ -127,7 +132,7 @@ class Campaign:
 
             self.native_exe, manifest = build_native(spec.guidance)
             self.law_args = manifest.flight_args()
-            self.say(f"guidance law {manifest.name} from {manifest.folder}: {self.native_exe.relative_to(REPO)}")
+            self.say(f"guidance law {manifest.name} from {manifest.folder}: {_shown(self.native_exe)}")
 
     def say(self, text: str) -> None:
         line = f"[{time.monotonic() - self.t0:6.0f} s] {text}"
@@ -185,7 +190,7 @@ class Campaign:
             exe, _ = build_cross(spec.guidance, t)
         else:
             exe = build.cross_build(t)
-        self.say(f"{t.name}: {exe.path.relative_to(REPO)} ({exe.size_bytes / 1024:.0f} KiB, static)")
+        self.say(f"{t.name}: {_shown(exe.path)} ({exe.size_bytes / 1024:.0f} KiB, static)")
         lib = plugin.build(download=True)
         profile_lib = plugin.build_profile(download=False)
         tdir = self.runs_dir / t.build_name
@@ -213,7 +218,7 @@ class Campaign:
         if spec.checks:
             ideal_meta = {**base, "horizons": DEFAULT_HORIZONS, "kind": "check"}
             native_dir = self.runs_dir / "native" / "case1-ideal"
-            fp = hashlib.sha256(f"native{_sha(self.native_exe or REPO / 'build/native/flight_sw/rvd_flight_sw')}".encode()).hexdigest()[:16]
+            fp = hashlib.sha256(f"native{_sha(self.native_exe or find_flight_executable())}".encode()).hexdigest()[:16]
             native = self.run(native_dir, "case1_vbar", fingerprint=fp, ideal=True,
                               meta={"target": "host", "mode": "native", "kind": "check", "horizons": DEFAULT_HORIZONS})
             reps = []
@@ -338,7 +343,8 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
     ap.add_argument("--no-noise", action="store_true")
     ap.add_argument("--no-checks", action="store_true", help="skip the determinism and native-vs-QEMU checks")
     ap.add_argument("--no-system", action="store_true", help="skip QEMU system mode")
-    ap.add_argument("--out", default=str(REPO / "reports" / "pil"), help="campaign directory (default reports/pil)")
+    ap.add_argument("--out", default=str(paths.reports_root() / "pil"),
+                    help="campaign directory (default reports/pil in the checkout, or in the current folder)")
     ap.add_argument("--report-only", action="store_true", help="rebuild the report from the runs in --out")
     ap.add_argument("--replace", action="store_true",
                     help="--out holds a campaign with other settings: delete its runs and start afresh")

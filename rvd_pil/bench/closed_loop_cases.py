@@ -141,6 +141,9 @@ def ablations_table() -> None:
 
 
 def save_qps(path: str, max_qps: int) -> None:
+    from rvd_pil import paths
+
+    paths.require_checkout("a recorded QP set (tests/support/qp_forms.py)")
     from support.qp_forms import from_dict, save_qp_set
 
     p = fsw.GuidanceParams()

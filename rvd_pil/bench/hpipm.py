@@ -20,7 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from support.qp_forms import OcpQpData
+from rvd_pil import paths
+
+paths.require_checkout("HPIPM's benchmark (its QP forms are tests/support/qp_forms.py)")
+from support.qp_forms import OcpQpData  # noqa: E402
 
 MODES = {"speed_abs": 0, "speed": 1, "balance": 2, "robust": 3}
 _lib = None

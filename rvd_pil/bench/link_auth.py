@@ -22,7 +22,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
+from rvd_pil import paths
+
 PROGRAM = "link_auth_bench"
 LINE = re.compile(r"auth (.*)")
 SHORTEST_PERIOD_S = 5.0
@@ -38,7 +39,7 @@ def _parse(stdout: str) -> dict[str, dict]:
 
 
 def native(n: int) -> dict[str, dict]:
-    build = REPO / "build" / "native"
+    build = paths.require_checkout("the link authentication benchmark (tests/cpp/tools)") / "build" / "native"
     subprocess.run(["cmake", "--build", str(build), "--target", PROGRAM, "-j2"], check=True, capture_output=True)
     exe = next(p for p in build.rglob(PROGRAM) if p.is_file() and "CMakeFiles" not in p.parts)
     return _parse(subprocess.run([str(exe), str(n)], check=True, capture_output=True, text=True).stdout)

@@ -64,15 +64,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
+from rvd_pil import paths
 
+paths.require_checkout("the link latency benchmark (tests/cpp/tools/zenoh_probe, tests/support)")
 from support.zenoh_link_harness import Probe, free_port, python_zenoh, wait_matching  # noqa: E402
 
 CLOCK = ("host time.monotonic() (CLOCK_MONOTONIC): nav put -> cmd taken from the host inbox; "
          "host wall time, also under QEMU (not target time)")
-DEFAULT_JSON = REPO / "reports" / "link_latency.json"
+DEFAULT_JSON = paths.reports_root() / "link_latency.json"
 QEMU_USER_TARGETS = ("q7s", "rpi3")
 SYSTEM_TARGET = "rpi3"
 
@@ -464,7 +463,7 @@ def parse_args(argv=None):
                                  epilog=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sections", default="echo,flight", help="comma-separated: echo, flight (default both)")
     ap.add_argument("--mode", choices=["peer", "router"], default="peer", help="host Zenoh mode (both sections)")
-    ap.add_argument("--json", default=str(DEFAULT_JSON), help=f"write the figures here (default {DEFAULT_JSON.relative_to(REPO)}); '' for none")
+    ap.add_argument("--json", default=str(DEFAULT_JSON), help="write the figures here (default reports/link_latency.json); '' for none")
     g = ap.add_argument_group("echo section")
     g.add_argument("--n", type=int, default=2000, help="exchanges per echoer (default 2000)")
     g.add_argument("--block", type=int, default=200, help="exchanges per interleaved block")

@@ -7,7 +7,7 @@ each must make the tests fail. A benchmark (minutes per defect), not part of `ma
     python -m rvd_pil.bench.mutation_check --list           # the mutations and what each runs
 
 The copy (tracked and untracked, not ignored, files of this checkout) gets its own CMake build with
-the flight executable, the C++ tests and the `flight_sw` Python module; the tests run against that
+the flight executable, the C++ tests and the `rvd_pil.flight_sw` Python module; the tests run against that
 copy only (the checkout's editable install is taken out of the import path). Each mutation is a
 textual edit that must apply exactly once; after it the copy is rebuilt incrementally, the tests
 run, and the edit is undone. Printed per mutation: the tests that failed ("caught by"), or SURVIVED.
@@ -32,12 +32,14 @@ import re
 import shutil
 import subprocess
 import sys
+import sysconfig
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from rvd_pil import paths
+
 
 
 @dataclass
@@ -88,19 +90,20 @@ def run(cmd, cwd, env=None, log=None) -> tuple[int, str]:
 
 
 def copy_tree(dst: Path) -> None:
-    files = subprocess.run(["git", "ls-files", "-z", "-co", "--exclude-standard"], cwd=REPO, check=True,
+    repo = paths.require_checkout("the mutation check")
+    files = subprocess.run(["git", "ls-files", "-z", "-co", "--exclude-standard"], cwd=repo, check=True,
                            stdout=subprocess.PIPE).stdout.decode().split("\0")
     for f in filter(None, files):
-        src = REPO / f
+        src = repo / f
         if src.is_file():
             (dst / f).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, dst / f)
 
 
-# pytest in the copy, with the checkout's editable install (a meta-path finder that maps flight_sw,
-# host_sim, studies and qemu to the checkout) removed, so the copy's sources and module are imported.
+# pytest in the copy, with the checkout's editable install (a meta-path finder that maps rvd_pil and
+# rvd_pil.flight_sw to the checkout) removed, so the copy's sources and module are imported.
 BOOT = ("import os, sys; sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in type(f).__module__.lower() "
-        "and 'editable' not in type(f).__name__.lower()]; import flight_sw, host_sim; "
+        "and 'editable' not in type(f).__name__.lower()]; from rvd_pil import flight_sw, host_sim; "
         "bad = [m.__name__ for m in (flight_sw, host_sim) if not m.__file__.startswith(os.getcwd())]; "
         "bad and sys.exit('not the copy: ' + ', '.join(bad)); import pytest; sys.exit(pytest.main(sys.argv[1:]))")
 
@@ -110,7 +113,7 @@ class Copy:
         self.root, self.jobs, self.log = root, jobs, log
         self.build = root / "build" / "native"
         self.env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
-                        PYTHONPATH=os.pathsep.join([str(self.build / "flight_sw"), str(root)]),
+                        PYTHONPATH=str(root),
                         RVD_FLIGHT_SW=str(self.build / "flight_sw" / "rvd_flight_sw"),
                         RVD_ZENOH_PROBE=str(self.build / "tests" / "cpp" / "zenoh_probe"))
 
@@ -119,6 +122,9 @@ class Copy:
                        "-DRVD_BUILD_PYTHON=ON", f"-DPython_EXECUTABLE={sys.executable}"], self.root, log=self.log)
         if rc:
             raise SystemExit(f"cmake configure of the copy failed:\n{out[-3000:]}")
+        # the copy's module, where `from rvd_pil import flight_sw` finds it (rebuilt in place)
+        module = "flight_sw" + sysconfig.get_config_var("EXT_SUFFIX")
+        (self.root / "rvd_pil" / module).symlink_to(self.build / "flight_sw" / module)
 
     def rebuild(self) -> tuple[bool, str]:
         rc, out = run(["nice", "-n", "10", "cmake", "--build", str(self.build), "-j", str(self.jobs)], self.root,

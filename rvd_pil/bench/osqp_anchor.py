@@ -25,8 +25,9 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-REPO = Path(__file__).resolve().parent.parent
-WORK = REPO / "build" / "osqp_anchor"
+from rvd_pil import paths
+
+WORK = paths.build_root() / "osqp_anchor"
 PUBLISHED_MS = {10: 3.55, 30: 14.2}  # Raspberry Pi 3B, `time ./example`, as the project records them
 TARGET = "rpi3"
 

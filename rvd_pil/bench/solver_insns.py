@@ -17,7 +17,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
+from rvd_pil import paths
+
 # `make pil` before the change, rpi3 (Cortex-A53) means of instructions per solve.
 EARLIER_MEAN = {("rpi3", "rendezvous", 30): 2.73e6, ("rpi3", "approach", 15): 5.42e6, ("rpi3", "docking", 12): 0.92e6}
 
@@ -27,10 +28,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="an existing campaign directory to summarise (default: run one)")
     ap.add_argument("--targets", default="q7s,rpi3")
     args = ap.parse_args(argv)
-    out = Path(args.out) if args.out else REPO / "reports" / "insns"
+    out = Path(args.out) if args.out else paths.reports_root() / "insns"
     if not args.out:
         subprocess.run([sys.executable, "-m", "rvd_pil.bench.campaign", "--targets", args.targets, "--no-checks", "--no-system",
-                        "--out", str(out)], check=True, cwd=REPO)
+                        "--out", str(out)], check=True)
     from rvd_pil.bench.report import load_campaign, solves
     metas, df = load_campaign(out)
     rows = solves(metas, df)

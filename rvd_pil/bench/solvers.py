@@ -46,7 +46,10 @@ from collections import defaultdict
 import numpy as np
 import scipy.sparse as sp
 
-from support.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, condense, from_dict, load_qp_set,
+from rvd_pil import paths
+
+paths.require_checkout("the peer-solver benchmark (its QP forms are tests/support/qp_forms.py)")
+from support.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, condense, from_dict, load_qp_set,  # noqa: E402
                             save_qp_set, solve_proxsuite, to_stacked)
 
 AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |f*|)

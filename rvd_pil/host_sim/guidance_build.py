@@ -1,7 +1,8 @@
 """Build a plug-in guidance law from its folder: the law's C/C++ sources and a manifest, `law.toml`,
 linked with the flight software's harness into `rvd_flight_sw_<name>` by the same CMake build (and
 so the same toolchain) as the flight executable: natively in build/native, or statically for a cross
-target in build/cross/<target>.
+target in build/cross/<target> (build/ of the checkout, or an installed package's cache folder:
+rvd_pil.paths).
 
     name = "cw_target"                  # letters, digits, '_'; the executable is rvd_flight_sw_<name>
     description = "CW two-impulse targeting"
@@ -23,7 +24,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
+from rvd_pil import paths
+
 MANIFEST = "law.toml"
 SOURCE_SUFFIXES = (".c", ".cc", ".cpp", ".cxx")
 _KEYS = {"name", "description", "sources", "include_dirs", "defines", "params"}
@@ -145,15 +147,15 @@ def _run(cmd: list[str], what: str, manifest: LawManifest) -> None:
 def build_native(folder: str | Path, *, build_dir: Path | None = None, jobs: int = 2) -> tuple[Path, LawManifest]:
     """Builds the law natively; returns (executable, manifest)."""
     manifest = load_manifest(folder)
-    bdir = Path(build_dir or REPO / "build" / "native")
+    bdir = Path(build_dir or paths.build_root() / "native")
     bdir.mkdir(parents=True, exist_ok=True)
     # One builder per build directory at a time (the lock file rvd_pil/qemu/build.py uses for its trees).
     with open(bdir / ".rvd-build.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         registration = register(manifest, bdir)
         try:
-            _run(["cmake", "-S", str(REPO), "-B", str(bdir), "-DCMAKE_BUILD_TYPE=Release", "-DRVD_BUILD_TESTS=ON"],
-                 "configure", manifest)
+            _run(["cmake", "-S", str(paths.source_root()), "-B", str(bdir), "-DCMAKE_BUILD_TYPE=Release",
+                  f"-DRVD_BUILD_TESTS={'ON' if paths.cpp_tests() else 'OFF'}"], "configure", manifest)
             _run(["cmake", "--build", str(bdir), f"-j{jobs}", "--target", manifest.program], "build", manifest)
         except LawBuildError:
             registration.unlink(missing_ok=True)  # a law that does not build stays out of the build tree

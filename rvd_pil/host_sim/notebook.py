@@ -157,8 +157,7 @@ class CampaignResult:
 
 
 def load_campaign(out: str | Path) -> CampaignResult:
-    """The DataFrames of a campaign folder whose report was written (report.json); works from an
-    installed wheel too."""
+    """The DataFrames of a campaign folder whose report was written (report.json)."""
     out = Path(out)
     rep = json.loads((out / "report.json").read_text())
     verdict = pd.DataFrame(rep["verdict"])
@@ -174,14 +173,10 @@ def load_campaign(out: str | Path) -> CampaignResult:
 def run_campaign(targets: Sequence[str] = ("q7s", "rpi3"), *, out: str | Path = "reports/pil", cpu: str | None = None,
                  scenarios: Sequence[str] | None = None, full: bool = False, checks: bool = True,
                  system_mode: bool = True, replace: bool = False) -> CampaignResult:
-    """Run the PIL campaign of `make pil` (rvd_pil/bench/campaign.py, from a checkout) into `out`, write its
-    report and return its DataFrames. A folder holding another campaign is refused
+    """Run the PIL campaign of `make pil` (rvd_pil/bench/campaign.py) into `out`, write its report and
+    return its DataFrames. A folder holding another campaign is refused
     (rvd_pil.bench.campaign.CampaignConflict) unless replace=True; the same settings resume."""
-    try:
-        from rvd_pil.bench import campaign
-    except ImportError:
-        raise RuntimeError("the PIL campaign (rvd_pil/bench/) runs from a checkout of rvd-pil, not from an installed "
-                           "wheel: run it there (make pil), then load_campaign(<its folder>)") from None
+    from rvd_pil.bench import campaign
 
     argv = ["--targets", ",".join(targets), "--out", str(out)]
     argv += ["--cpu", cpu] if cpu else []

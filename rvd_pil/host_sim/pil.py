@@ -28,14 +28,14 @@ import uuid
 from pathlib import Path
 from typing import Callable, Optional, Sequence
 
+from rvd_pil import paths
 from rvd_pil.host_sim import messages as msg
 from rvd_pil.host_sim.record import RunRecorder
 from rvd_pil.host_sim.scenario import Scenario, load
-from rvd_pil.host_sim.server import (FLIGHT_COLUMNS, PLANAR_COLUMNS, SAFETY_COLUMNS, PilServer, RunSummary, ServerConfig,
-                             free_tcp_port)
+from rvd_pil.host_sim.server import (FLIGHT_COLUMNS, PLANAR_COLUMNS, SAFETY_COLUMNS, PilServer, RunSummary,
+                                     ServerConfig, free_tcp_port)
 from rvd_pil.host_sim.simulator import Simulator
 
-REPO = Path(__file__).resolve().parent.parent
 # The whole environment of a flight process under QEMU user mode (besides the link key).
 EMULATED_FLIGHT_ENV = {"PATH": "/usr/local/bin:/usr/bin:/bin", "LC_ALL": "C"}
 FLIGHT_EXE_NAME = "rvd_flight_sw"
@@ -78,8 +78,8 @@ def check_runs_here(exe: Path | str) -> None:
 
 def find_flight_executable(explicit: Optional[str] = None, name: str = FLIGHT_EXE_NAME) -> Path:
     """The native flight executable: `explicit` (which must exist: never replaced by another),
-    $RVD_FLIGHT_SW, this checkout's build/native, the one an installed wheel bundles
-    (rvd_pil/host_sim/bin), or PATH."""
+    $RVD_FLIGHT_SW, the checkout's build/native, the one an installed wheel bundles (rvd_pil/bin),
+    or PATH."""
     if explicit:
         path = Path(explicit)
         if not path.is_file():
@@ -87,17 +87,16 @@ def find_flight_executable(explicit: Optional[str] = None, name: str = FLIGHT_EX
         if not os.access(path, os.X_OK):
             raise FlightLaunchError(f"flight executable {explicit}: not executable")
         return path
+    checkout = paths.checkout()
+    native = checkout / "build" / "native" / "flight_sw" if checkout else None
     candidates = [os.environ.get("RVD_FLIGHT_SW") if name == FLIGHT_EXE_NAME else None,
-                  str(REPO / "build" / "native" / "flight_sw" / name), str(Path(__file__).resolve().parent / "bin" / name),
-                  shutil.which(name)]
+                  str(native / name) if native else None, str(paths.BUNDLED_BIN / name), shutil.which(name)]
     for c in candidates:
         if c and Path(c).is_file() and os.access(c, os.X_OK):
             return Path(c)
-    raise FileNotFoundError(
-        f"no flight executable found (looked at $RVD_FLIGHT_SW, {REPO / 'build/native/flight_sw'}, "
-        f"{Path(__file__).resolve().parent / 'bin'}, PATH); "
-        "build it with `make build`"
-    )
+    looked = ", ".join(["$RVD_FLIGHT_SW", *([str(native)] if native else []), str(paths.BUNDLED_BIN), "PATH"])
+    raise FileNotFoundError(f"no flight executable found (looked at {looked}); "
+                            + ("build it with `make build`" if checkout else "reinstall rvd-pil"))
 
 
 def error_model_args(sim: Simulator) -> list[str]:

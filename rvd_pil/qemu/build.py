@@ -13,7 +13,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from .targets import REPO_ROOT, Target
+from rvd_pil import paths
+
+from .targets import Target
 
 FLIGHT_EXE = "rvd_flight_sw"
 
@@ -25,7 +27,7 @@ class Executable:
 
 
 def build_dir(target: Target, root: Path | None = None) -> Path:
-    return (root or REPO_ROOT / "build" / "cross") / target.build_name
+    return (root or paths.build_root() / "cross") / target.build_name
 
 
 @contextmanager
@@ -38,8 +40,8 @@ def _locked(directory: Path):
 
 
 def _cmake_args(target: Target, build_type: str) -> list[str]:
-    args = [f"-DCMAKE_BUILD_TYPE={build_type}", "-DRVD_BUILD_PYTHON=OFF", "-DRVD_BUILD_TESTS=ON",
-            "-DRVD_BUILD_APP=ON"]
+    args = [f"-DCMAKE_BUILD_TYPE={build_type}", "-DRVD_BUILD_PYTHON=OFF",
+            f"-DRVD_BUILD_TESTS={'ON' if paths.cpp_tests() else 'OFF'}", "-DRVD_BUILD_APP=ON"]
     if target.emulated:
         args += [f"-DCMAKE_TOOLCHAIN_FILE={target.toolchain_file}", f"-DRVD_CPU={target.cpu}",
                  f"-DRVD_QEMU_CPU={target.qemu_cpu}", "-DRVD_STATIC=ON"]
@@ -53,7 +55,7 @@ def configure(target: Target, *, build_type: str = "Release", root: Path | None 
     directory of `target`."""
     bdir = build_dir(target, root)
     with _locked(bdir):
-        _run(["cmake", "-S", str(REPO_ROOT), "-B", str(bdir), *_cmake_args(target, build_type)],
+        _run(["cmake", "-S", str(paths.source_root()), "-B", str(bdir), *_cmake_args(target, build_type)],
              f"configure {target.build_name}")
     return bdir
 

@@ -44,11 +44,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import asm_dataflow
-from .targets import REPO_ROOT, Target
+from rvd_pil import paths
+
+from .targets import Target
 
 MODELS = Path(__file__).with_name("cycle_models.toml")
 CALIBRATION = Path(__file__).with_name("calibration.toml")
-CACHE_DIR = REPO_ROOT / "build" / "cycles"
+CACHE_DIR = paths.build_root() / "cycles"
 LLVM_MC = "llvm-mc-15"
 LLVM_MCA = "llvm-mca-15"
 STEADY_ITERATIONS = 21

@@ -17,9 +17,9 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from .targets import REPO_ROOT
+from rvd_pil import paths
 
-APT_ROOT = REPO_ROOT / "build" / "apt"
+APT_ROOT = paths.build_root() / "apt"
 MIRROR = os.environ.get("RVD_DEBIAN_MIRROR", "http://deb.debian.org/debian")
 SECURITY_MIRROR = os.environ.get("RVD_DEBIAN_SECURITY_MIRROR", "http://deb.debian.org/debian-security")
 KEYRING = "/usr/share/keyrings/debian-archive-keyring.gpg"

@@ -38,9 +38,11 @@ from typing import Sequence
 
 from . import debian
 from .cpio import CpioWriter
-from .targets import REPO_ROOT, Target
+from rvd_pil import paths
 
-CACHE = REPO_ROOT / "build" / "qemu-system"
+from .targets import Target
+
+CACHE = paths.build_root() / "qemu-system"
 # Debian builds virtio_mmio and virtio_net as modules; insmod has no modules.dep, so the order is
 # the dependency order. vexpress-a9 has virtio-mmio transports too (QEMU adds them to its dtb).
 NET_MODULES = ("failover", "net_failover", "virtio_mmio", "virtio_net")

@@ -14,7 +14,8 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
+from rvd_pil import paths
+
 REGISTRY = Path(__file__).with_name("targets.toml")
 CPU_ENV = "QEMU_CPU"  # the variable QEMU user mode itself reads; we honour it the same way
 
@@ -93,6 +94,15 @@ class Target:
                 n * self.cpi.high / self.clock_hz)
 
 
+def _toolchain(relative: str) -> Path | None:
+    """The toolchain file (relative to the C++ source tree: the checkout or a wheel's copy); None
+    when this installation ships no sources (the cross build then says a checkout is needed)."""
+    try:
+        return paths.source_root() / relative
+    except FileNotFoundError:
+        return None
+
+
 def _registry() -> dict:
     with REGISTRY.open("rb") as f:
         return tomllib.load(f)
@@ -146,7 +156,7 @@ def load(name: str, cpu: str | None = None) -> Target:
                             icount_shift=int(s.get("icount_shift", 0)))
     return Target(name=name, description=t["description"], arch=arch, cpu=cpu_name,
                   clock_hz=float(t["clock_hz"]), clock_source=t["clock_source"], mfpu=c.get("mfpu"),
-                  cpi=cpi, system=system, toolchain_file=REPO_ROOT / a["toolchain"],
+                  cpi=cpi, system=system, toolchain_file=_toolchain(a["toolchain"]),
                   compiler=a["compiler"], qemu_user=a["qemu_user"], qemu_system=a["qemu_system"],
                   qemu_cpu=c["qemu_cpu"], debian_arch=a["debian_arch"], objdump=a["objdump"],
                   cpu_overridden=cpu_name != t["cpu"], system_note=system_note)

@@ -18,13 +18,13 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from rvd_pil import paths
 from rvd_pil.qemu import cycles, plugin, targets, user
 
 HERE = Path(__file__).resolve().parent
-REPO = HERE.parent.parent
 SOURCE = HERE / "kernels.cpp"
 EXPECTED = HERE / "expected.toml"
-OUT = REPO / "build" / "microbench"
+OUT = paths.build_root() / "microbench"
 KERNELS = ("fma_chain", "fma_stream", "load_chain", "div_chain", "call_loop")
 ITERATIONS = 2000
 
@@ -47,7 +47,7 @@ def build(target: targets.Target) -> Path:
     if exe.exists() and exe.stat().st_mtime >= SOURCE.stat().st_mtime:
         return exe
     exe.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [target.compiler, "-std=c++17", "-O2", "-static", *target.compile_flags, f"-I{REPO}",
+    cmd = [target.compiler, "-std=c++17", "-O2", "-static", *target.compile_flags, f"-I{paths.source_root()}",
            str(SOURCE), "-o", str(exe)]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:

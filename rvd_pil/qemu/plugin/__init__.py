@@ -20,12 +20,13 @@ import tarfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from rvd_pil import paths
+
 from .. import debian
-from ..targets import REPO_ROOT
 
 SOURCE = Path(__file__).with_name("insn_count.c")
 PROFILE_SOURCE = Path(__file__).with_name("block_profile.c")
-CACHE = REPO_ROOT / "build" / "qemu-plugin"
+CACHE = paths.build_root() / "qemu-plugin"
 HEADER_MEMBER = "include/qemu/qemu-plugin.h"
 QEMU_PACKAGE = "qemu-user"  # the dynamic qemu-arm / qemu-aarch64 (plugins do not load in -static)
 
