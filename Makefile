@@ -28,7 +28,7 @@ $(VENV)/.stamp-venv: pyproject.toml | deps
 	touch $@
 venv: $(VENV)/.stamp-venv
 
-# Editable install: host_sim's Python files stay in the tree, the flight_sw module is rebuilt here.
+# Editable install: rvd_pil's Python files stay in the tree, the module rvd_pil.flight_sw is rebuilt here.
 $(VENV)/.stamp-build: $(VENV)/.stamp-venv $(CPP_SOURCES)
 	$(PY) -m pip install -q -e ".[test]" --no-build-isolation
 	touch $@

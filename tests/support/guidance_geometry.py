@@ -44,7 +44,7 @@ def in_pyramid(q, rel, half_angle_rad, tol=0.0):
 
 def ocp_to_dense(qp):
     """Stack the stage-wise QP into z = [x_0..x_N, u_0..u_N]: min 1/2 z'Hz + g'z, Ae z = be, Ci z <= ci.
-    Soft rows become slack inputs first (bench.qp_forms.expand_soft): u_i then ends with stage i's slacks."""
+    Soft rows become slack inputs first (support.qp_forms.expand_soft): u_i then ends with stage i's slacks."""
     if "idxs" in qp:
         e = expand_soft(from_dict(qp))
         qp = {**{k: getattr(e, k) for k in ("A", "B", "b", "Q", "q", "R", "r", "C", "D", "d")}, "x0": e.x0}

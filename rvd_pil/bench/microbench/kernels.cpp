@@ -113,7 +113,7 @@ void call_loop(std::uint64_t n64) {
                : "+r"(n) : : "cc", "lr", "memory");
 }
 #else
-#error "the microbenchmarks are ARM assembly: build them with the cross compilers (rvd_pil/bench/microbench/build.py)"
+#error "the microbenchmarks are ARM assembly: build them with the cross compilers (rvd_pil/bench/microbench/run.py)"
 #endif
 
 struct Kernel {
