@@ -13,7 +13,7 @@ from rvd_pil import paths
 
 ROOT = Path(__file__).resolve().parents[1]
 OLD = ("host_sim", "bench", "qemu", "studies", "flight_sw")
-IMPORT = re.compile(r"^\s*(?:>>> )?(?:from|import)\s+(" + "|".join(OLD) + r")\b", re.M)
+IMPORT = re.compile(r"(?:^\s*(?:>>> )?|`)(?:from|import)\s+(" + "|".join(OLD) + r")\b", re.M)  # code, doctest, `inline`
 RUN = re.compile(r"-m(?:[\"'],)?\s+[\"']?(" + "|".join(OLD) + r")\b(?![-/])")  # python -m X, [..., "-m", "X"]
 
 

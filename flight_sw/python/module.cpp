@@ -1,4 +1,4 @@
-// The pybind11 module `flight_sw`: the same C++ core the flight executable runs, exposed to Python
+// The pybind11 module `rvd_pil.flight_sw`: the same C++ core the flight executable runs, exposed to Python
 // so that tests run natively and fast. Each part binds itself in its own file.
 #include <pybind11/pybind11.h>
 
