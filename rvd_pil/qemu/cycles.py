@@ -43,9 +43,9 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import asm_dataflow
 from rvd_pil import paths
 
+from . import asm_dataflow
 from .targets import Target
 
 MODELS = Path(__file__).with_name("cycle_models.toml")
