@@ -92,7 +92,7 @@ def test_the_in_process_path_flies_the_obstacles_as_the_executable_does(tmp_path
 def test_the_papers_rendezvous_to_a_holding_distance_through_the_harness(tmp_path, name, expect):
     """Dong et al.'s 3-D and Weiss et al.'s GEO scenarios as scenario files: the run ends "held" at the
     holding distance, round the obstacles, with the figures the in-process benches print (CW, ideal)."""
-    path = Path(__file__).resolve().parent.parent / "bench" / "scenarios" / name
+    path = Path(__file__).resolve().parent.parent / "rvd_pil" / "bench" / "scenarios" / name
     summary, _ = run_pil(scenario.load(path), truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True,
                          config=ServerConfig(delay_model="none"), run_dir=tmp_path / "run")
     assert summary.end == "held" and summary.held and not summary.docked
