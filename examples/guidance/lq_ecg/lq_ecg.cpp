@@ -48,7 +48,7 @@ using Matrix6Z = Eigen::Matrix<double, 6, ecg::kMaxVars>;
 using Matrix3Z = Eigen::Matrix<double, 3, ecg::kMaxVars>;
 
 struct Settings {
-  int L = 3;                  // shift-register length (eq 22)
+  int L = 6;                  // shift-register length (eq 22)
   int n_c = 10;               // constraint horizon (eq 29), periods
   double xbar_weight = 1.0;   // w: cost of the transient command xbar against |rho - r|^2 [1/m^2 relative]
   double slack_weight = 1e4;  // approach corridor slack, per m^2
