@@ -194,7 +194,9 @@ def register(manifest: LawManifest, build_dir: Path) -> Path:
 def _run(cmd: list[str], what: str, manifest: LawManifest) -> None:
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
-        errors = [ln for ln in (r.stdout + r.stderr).splitlines() if "error" in ln.lower()]
+        lines = (r.stdout + r.stderr).splitlines()
+        # a compiler's or linker's diagnostic first (a source may have "error" in its name)
+        errors = [ln for ln in lines if "error:" in ln.lower()] or [ln for ln in lines if "error" in ln.lower()]
         first = errors[0].strip() if errors else (r.stderr or r.stdout).strip().splitlines()[-1:]
         raise LawBuildError(f"{manifest.folder / MANIFEST}: {what} failed: {first}")
 

@@ -209,7 +209,7 @@ def _glue(prefix: str, phase: str, N: int, solver: str, P: dict, folder: Path, w
                   f"    default: return RVD_CPG_OTHER;\n  }}")
         settings = "\n".join(f"  {pfx}cpg_set_solver_{k}({v!r});" for k, v in SETTINGS[solver].items())
     else:
-        status = (f"  switch ({pfx}CPG_Info.status) {{\n"
+        status = (f"  switch (solver.info->status_val) {{  /* CVXPYgen's info holds OSQP's status as text */\n"
                   f"    case OSQP_SOLVED: return RVD_CPG_SOLVED;\n"
                   f"    case OSQP_MAX_ITER_REACHED: return RVD_CPG_MAX_ITER;\n"
                   f"    case OSQP_PRIMAL_INFEASIBLE: case OSQP_PRIMAL_INFEASIBLE_INACCURATE: return RVD_CPG_INFEASIBLE;\n"
