@@ -2,15 +2,18 @@
 per solve, the cycle model's estimated target time, iterations, accuracy against our solver on the same QP,
 and the closed loop's delta-v; with the ratios to our Fast MPC.
 
-    python -m bench.peer_laws                      quick: Case 1 (disturbed), three horizon sets, q7s and rpi3
+    python -m bench.peer_laws                      quick: Case 1 (disturbed), three horizon sets, q7s and rpi3,
+                                                   and the determinism checks (ideal Case 1 twice per target)
     python -m bench.peer_laws --laws lq_ecg        only some peers (fast_mpc is always there)
-    python -m bench.peer_laws --targets rpi3 --checks     the determinism checks too (ideal Case 1 twice per target)
+    python -m bench.peer_laws --targets rpi3 --no-checks
     python -m bench.peer_laws --full               the PIL campaign's scenarios (Case 1 and two random starts)
     python -m bench.peer_laws --report-only        the page from the runs already made
 
 Each law is one PIL campaign (bench/campaign.py: cross-built statically, run under QEMU user mode with the
 instruction counter and the block profiler, priced by the cycle model) in reports/peers/<law>/, with the
-same scenarios, horizon sets and noise seed as our MPC's. Accuracy: the CVXPYgen peers solve our MPC's
+same scenarios, horizon sets and noise seed as our MPC's. Each is the campaign `make pil GUIDANCE=<law folder>
+PIL_OUT=reports/peers/<law> PIL_ARGS="--scenarios case1_vbar --no-system"` makes (that command's runs are
+reused here, and these there). Accuracy: the CVXPYgen peers solve our MPC's
 own phase QPs (examples/guidance/cvxpygen_common): each is flown once more natively with law.shadow = 1,
 which solves every QP of the run also with our Fast MPC (reference settings) and records the difference
 of the first delta-v, of the objective (our OCP objective evaluated at both solutions) and the peer's
@@ -222,7 +225,7 @@ def main(argv=None) -> int:
     ap.add_argument("--laws", default=",".join(LAWS), help=f"comma-separated peers (default {','.join(LAWS)})")
     ap.add_argument("--targets", default="q7s,rpi3")
     ap.add_argument("--full", action="store_true", help="Case 1 and two seeded random starts (the PIL campaign's)")
-    ap.add_argument("--checks", action="store_true", help="the determinism checks of every campaign")
+    ap.add_argument("--no-checks", action="store_true", help="skip the determinism checks of every campaign")
     ap.add_argument("--out", type=Path, default=REPO / "reports" / "peers")
     ap.add_argument("--report-only", action="store_true")
     a = ap.parse_args(argv)
@@ -238,7 +241,7 @@ def main(argv=None) -> int:
     if not a.report_only:
         for law in [OURS, *laws]:
             print(f"== {law}", flush=True)
-            rc = run_campaign(law, base / law, targets, scenarios, a.checks)
+            rc = run_campaign(law, base / law, targets, scenarios, not a.no_checks)
             if rc:
                 print(f"{law}: campaign failed (exit {rc})", file=sys.stderr)
                 return rc
