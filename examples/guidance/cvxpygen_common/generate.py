@@ -316,13 +316,19 @@ def main(argv=None) -> int:
     index = dest / "sources.json"
     if not index.exists():
         for old in out.iterdir() if out.exists() else ():  # one generation kept per law
-            if old.is_dir() and re.fullmatch(r"[0-9a-f]{16}", old.name):
+            if old.is_dir() and re.fullmatch(r"[0-9a-f]{16}", old.name) and old != dest:
                 shutil.rmtree(old)
-        dest.mkdir(parents=True)
+        dest.mkdir(parents=True, exist_ok=True)
         sources, prefixes = [], []
         for ph, Ns in horizons.items():
             for N in Ns:
-                prefix, srcs = generate_problem(ph, N, a.solver, dest)
+                done = dest / f"{ph[0]}{N}" / "done.json"  # an interrupted generation resumes per problem
+                if done.exists():
+                    prefix, srcs = json.loads(done.read_text())
+                    srcs = [Path(x) for x in srcs]
+                else:
+                    prefix, srcs = generate_problem(ph, N, a.solver, dest)
+                    done.write_text(json.dumps([prefix, [str(x) for x in srcs]]))
                 prefixes.append(prefix)
                 sources += srcs
                 print(f"generated {ph} N={N} ({a.solver}) as {prefix}_", flush=True)
