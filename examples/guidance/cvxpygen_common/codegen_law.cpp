@@ -47,6 +47,7 @@ struct Slot {
   std::unique_ptr<rvd::solver::FastMpcSolver> reference;  // shadow mode only
   std::array<std::vector<double>, RVD_CPG_N_PARAMS> values;
   std::vector<int> cone_stages;  // stages with the 4 pyramid rows
+  bool dynamics_set = false;     // A and B are set once, at the phase's first solve
 };
 
 struct Law {
@@ -55,7 +56,6 @@ struct Law {
   Phase phase = Phase::Rendezvous;
   std::array<Slot, 3> slot;
   bool shadow = false;
-  bool dynamics_set = false;
   uint32_t failures = 0;
   rvd::solver::Vector x0;
 };
@@ -308,7 +308,8 @@ int step(void* p, const rvd_nav_input* nav, double budget_s, rvd_guidance_output
   }
   Slot& s = law.slot[static_cast<int>(law.phase) - 1];
   s.qp->build(x, target, quality);
-  load(s, !law.dynamics_set);
+  load(s, !s.dynamics_set);
+  s.dynamics_set = true;
   s.problem->solve();
   const int st = s.problem->status();
   out->computed = 1;
@@ -329,7 +330,6 @@ int step(void* p, const rvd_nav_input* nav, double budget_s, rvd_guidance_output
     out->status = RVD_STATUS_ZERO_THRUST;
     out->solver_status = static_cast<uint8_t>(st == RVD_CPG_SOLVED ? RVD_SOLVER_NUMERICAL_ERROR : st);
   }
-  law.dynamics_set = true;
   put(out, "peer_failed", out->status == RVD_STATUS_OK ? 0.0 : 1.0);
   put(out, "peer_failures", law.failures);
   if (law.shadow) {
