@@ -11,7 +11,7 @@ JOBS ?= $(shell nproc)
 NATIVE := build/native
 CPP_SOURCES := $(shell find flight_sw tests/cpp -name '*.cpp' -o -name '*.hpp' -o -name 'CMakeLists.txt') CMakeLists.txt
 
-.PHONY: test pil bench asan deps deps-pil venv build native clean qemu-check
+.PHONY: test pil peers bench asan deps deps-pil venv build native clean qemu-check
 
 deps:
 	tools/install-deps test
@@ -24,13 +24,13 @@ $(VENV)/.stamp-venv: pyproject.toml | deps
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q "scikit-build-core>=0.10" "pybind11>=2.12" ninja
-	$(PY) -m pip install -q -e ".[test]" --no-build-isolation
+	$(PY) -m pip install -q -e ".[test,peers]" --no-build-isolation
 	touch $@
 venv: $(VENV)/.stamp-venv
 
 # Editable install: rvd_pil's Python files stay in the tree, the module rvd_pil.flight_sw is rebuilt here.
 $(VENV)/.stamp-build: $(VENV)/.stamp-venv $(CPP_SOURCES)
-	$(PY) -m pip install -q -e ".[test]" --no-build-isolation
+	$(PY) -m pip install -q -e ".[test,peers]" --no-build-isolation
 	touch $@
 build: $(VENV)/.stamp-build native
 
@@ -57,7 +57,7 @@ asan: | deps
 	cd build/asan && ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 ctest --output-on-failure
 
 bench: build
-	$(PY) -m pip install -q -e ".[test,bench]" --no-build-isolation
+	$(PY) -m pip install -q -e ".[test,peers,bench]" --no-build-isolation
 	$(PY) -m rvd_pil.bench.solvers
 	$(PY) -m rvd_pil.bench.link_latency
 	$(PY) -m rvd_pil.bench.link_auth
@@ -71,12 +71,18 @@ qemu-check: venv | deps-pil
 # The emulated PIL campaign. TARGET=q7s (or a comma-separated list) selects targets, CPU=cortex-a8
 # swaps the emulated CPU model; PIL_ARGS passes more options to rvd_pil/bench/campaign.py (e.g. --full).
 # GUIDANCE=PATH flies a plug-in guidance law (a folder with law.toml and its sources) instead of the
-# built-in MPC, built statically for every target by the same cross toolchains (report in reports/pil-<folder>).
+# built-in MPC, built statically for every target by the same cross toolchains (report in reports/pil-<folder>);
+# a law with a [generate] step (examples/guidance/cvxpygen_*) has its C generated first, cached in build/generated.
+# `make peers` runs rvd_pil/bench/peer_laws.py: our Fast MPC beside every example law (reports/peers/peers.html).
 TARGET ?= q7s,rpi3
 PIL_OUT ?= reports/pil$(if $(GUIDANCE),-$(notdir $(abspath $(GUIDANCE))))
 pil: export OPENBLAS_NUM_THREADS = 1
 pil: deps-pil build
 	$(PY) -m rvd_pil.bench.campaign --targets $(TARGET) $(if $(CPU),--cpu $(CPU)) $(if $(GUIDANCE),--guidance $(GUIDANCE)) --out $(PIL_OUT) $(PIL_ARGS)
+
+peers: export OPENBLAS_NUM_THREADS = 1
+peers: deps-pil build
+	$(PY) -m rvd_pil.bench.peer_laws --targets $(TARGET) $(PEERS_ARGS)
 
 clean:
 	rm -rf build

@@ -353,7 +353,8 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
                          "instead of the built-in MPC")
     a = ap.parse_args(argv)
     spec = Spec(targets=[t for t in a.targets.split(",") if t], cpu=a.cpu, truth=a.truth, noise=not a.no_noise,
-                checks=not a.no_checks, system_mode=not a.no_system, guidance=a.guidance)
+                checks=not a.no_checks, system_mode=not a.no_system,
+                guidance=str(Path(a.guidance).resolve()) if a.guidance else None)  # one campaign, however named
     if a.full:
         spec.scenarios = ["case1_vbar", "case2_rbar", "case3_rotating"] + [f"random:{i}" for i in range(1, 21)]
     if a.scenarios:

@@ -13,13 +13,25 @@ rvd_pil.paths).
     [params]                            # optional: defaults of the law's own parameters, handed to it
     gain = 0.5                          # in rvd_guidance_config.params (--set law.NAME=VALUE wins)
 
+    [generate]                          # optional: a script that writes generated C before the build
+    script = "generate.py"              # relative to the folder; run with this Python
+    args = ["--solver", "QOCO"]         # its options
+
 The law implements flight_sw/include/rvd_guidance.h and defines rvd_guidance_law_entry().
+
+A law with [generate] has part of its sources written at build time (e.g. a code-generated solver):
+the script is run as `python SCRIPT --out build/generated/<name> ARGS...` before every build, keeps
+its own cache in that folder (it returns at once when nothing it depends on changed) and writes
+`<out>/sources.json`: {"sources": [...], "include_dirs": [...], "defines": [...]}, absolute paths,
+which the build adds to the manifest's. Generated code is never committed.
 """
 from __future__ import annotations
 
 import fcntl
+import json
 import re
 import subprocess
+import sys
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +40,7 @@ from rvd_pil import paths
 
 MANIFEST = "law.toml"
 SOURCE_SUFFIXES = (".c", ".cc", ".cpp", ".cxx")
-_KEYS = {"name", "description", "sources", "include_dirs", "defines", "params"}
+_KEYS = {"name", "description", "sources", "include_dirs", "defines", "params", "generate"}
 
 
 class LawBuildError(RuntimeError):
@@ -44,6 +56,8 @@ class LawManifest:
     include_dirs: tuple[Path, ...] = ()
     defines: tuple[str, ...] = ()
     params: dict = field(default_factory=dict)
+    generate_script: Path | None = None  # [generate] script, run before the build
+    generate_args: tuple[str, ...] = ()
 
     @property
     def program(self) -> str:
@@ -89,8 +103,6 @@ def load_manifest(folder: str | Path) -> LawManifest:
         if p.suffix not in SOURCE_SUFFIXES:
             raise LawBuildError(f"{path}: sources: {s} is not a C or C++ source ({', '.join(SOURCE_SUFFIXES)})")
         sources.append(p)
-    if not sources:
-        raise LawBuildError(f"{path}: sources: at least one source file is needed")
     includes = []
     for s in strings("include_dirs"):
         p = (folder / s).resolve()
@@ -109,9 +121,54 @@ def load_manifest(folder: str | Path) -> LawManifest:
             raise LawBuildError(f"{path}: params: {k!r} is not a parameter name (1-23 letters, digits, '_', '.')")
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise LawBuildError(f"{path}: params: {k} must be a number, got {v!r}")
+    gen = data.get("generate")
+    script, gen_args = None, ()
+    if gen is not None:
+        if not isinstance(gen, dict) or set(gen) - {"script", "args"} or not isinstance(gen.get("script"), str):
+            raise LawBuildError(f"{path}: [generate] takes script = \"FILE.py\" and optional args = [...]")
+        script = (folder / gen["script"]).resolve()
+        if not script.is_file() or script.suffix != ".py":
+            raise LawBuildError(f"{path}: generate: script {gen['script']} is not a Python file")
+        gen_args = gen.get("args", [])
+        if not isinstance(gen_args, list) or not all(isinstance(x, str) for x in gen_args):
+            raise LawBuildError(f"{path}: generate: args must be a list of strings, got {gen_args!r}")
+    elif not sources:
+        raise LawBuildError(f"{path}: sources: at least one source file is needed")
     return LawManifest(folder=folder, name=name, description=str(data.get("description", "")),
                        sources=tuple(sources), include_dirs=tuple(includes), defines=tuple(defines),
-                       params={k: float(v) for k, v in params.items()})
+                       params={k: float(v) for k, v in params.items()}, generate_script=script,
+                       generate_args=tuple(gen_args))
+
+
+def generate(manifest: LawManifest) -> LawManifest:
+    """Runs the law's [generate] script (a no-op for a law without one) and returns the manifest with
+    the generated sources, include folders and defines added."""
+    if manifest.generate_script is None:
+        return manifest
+    out = paths.build_root() / "generated" / manifest.name
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / ".rvd-generate.lock", "w") as lock:  # a campaign and a test may generate at once
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        r = subprocess.run([sys.executable, str(manifest.generate_script), "--out", str(out), *manifest.generate_args],
+                           capture_output=True, text=True, cwd=manifest.folder)
+        if r.returncode != 0:
+            last = (r.stderr or r.stdout).strip().splitlines()[-1:] or ["no output"]
+            raise LawBuildError(f"{manifest.folder / MANIFEST}: generate: {manifest.generate_script.name} failed "
+                                f"(exit {r.returncode}): {last[0]}")
+        try:
+            made = json.loads((out / "sources.json").read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise LawBuildError(f"{manifest.folder / MANIFEST}: generate: no valid {out / 'sources.json'}: {exc}") from None
+    sources = tuple(Path(s) for s in made.get("sources", []))
+    missing = [s for s in sources if not s.is_file()]
+    if missing or not sources:
+        raise LawBuildError(f"{manifest.folder / MANIFEST}: generate: the script listed no sources or missing ones "
+                            f"({missing[:1]})")
+    return LawManifest(folder=manifest.folder, name=manifest.name, description=manifest.description,
+                       sources=manifest.sources + sources,
+                       include_dirs=manifest.include_dirs + tuple(Path(d) for d in made.get("include_dirs", [])),
+                       defines=manifest.defines + tuple(made.get("defines", [])), params=manifest.params,
+                       generate_script=manifest.generate_script, generate_args=manifest.generate_args)
 
 
 def _cmake_list(items) -> str:
@@ -139,14 +196,16 @@ def register(manifest: LawManifest, build_dir: Path) -> Path:
 def _run(cmd: list[str], what: str, manifest: LawManifest) -> None:
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
-        errors = [ln for ln in (r.stdout + r.stderr).splitlines() if "error" in ln.lower()]
+        lines = (r.stdout + r.stderr).splitlines()
+        # a compiler's or linker's diagnostic first (a source may have "error" in its name)
+        errors = [ln for ln in lines if "error:" in ln.lower()] or [ln for ln in lines if "error" in ln.lower()]
         first = errors[0].strip() if errors else (r.stderr or r.stdout).strip().splitlines()[-1:]
         raise LawBuildError(f"{manifest.folder / MANIFEST}: {what} failed: {first}")
 
 
 def build_native(folder: str | Path, *, build_dir: Path | None = None, jobs: int = 2) -> tuple[Path, LawManifest]:
     """Builds the law natively; returns (executable, manifest)."""
-    manifest = load_manifest(folder)
+    manifest = generate(load_manifest(folder))
     bdir = Path(build_dir or paths.build_root() / "native")
     bdir.mkdir(parents=True, exist_ok=True)
     # One builder per build directory at a time (the lock file rvd_pil/qemu/build.py uses for its trees).
@@ -170,7 +229,7 @@ def build_cross(folder: str | Path, target, *, jobs: int = 2):
     """Builds the law statically for a cross target (rvd_pil.qemu.targets.Target); returns (Executable, manifest)."""
     from rvd_pil.qemu import build as qbuild
 
-    manifest = load_manifest(folder)
+    manifest = generate(load_manifest(folder))
     registration = register(manifest, qbuild.build_dir(target))
     try:
         exe = qbuild.cross_build(target, manifest.program, jobs=jobs)

@@ -22,32 +22,6 @@ uint8_t solver_status_code(const Command& c) {
   return static_cast<uint8_t>(c.solver.status);
 }
 
-GuidanceParams params_from(const rvd_guidance_config& c) {
-  if (c.native != nullptr) return *static_cast<const GuidanceParams*>(c.native);
-  GuidanceParams p;
-  p.thrusters.mass_kg = c.vehicle.mass_kg;
-  p.thrusters.thrust_N = c.vehicle.thrust_n;
-  p.thrusters.min_impulse_bit_s = c.vehicle.min_impulse_bit_s;
-  // The orbit altitude whose two-body mean motion is n (the guidance's parameter is the altitude).
-  if (c.mean_motion_rad_s > 0.0)
-    p.orbit_altitude_m = std::cbrt(kEarthMu_m3_s2 / (c.mean_motion_rad_s * c.mean_motion_rad_s)) - kEarthRadius_m;
-  PhaseParams* phases[3] = {&p.rendezvous, &p.approach, &p.docking};
-  for (int i = 0; i < 3; ++i) {
-    if (c.phase[i].period_s > 0.0) phases[i]->Ts_s = c.phase[i].period_s;
-    if (c.phase[i].dv_max_mps > 0.0) phases[i]->u_max_mps = c.phase[i].dv_max_mps;
-    if (c.phase[i].horizon > 0) phases[i]->N = static_cast<int>(c.phase[i].horizon);
-  }
-  if (c.keepout_radius_m > 0.0) p.keepout_radius_m = c.keepout_radius_m;
-  if (c.approach_stop_m > 0.0) p.approach_stop_m = c.approach_stop_m;
-  if (c.dock_tolerance_m > 0.0) p.dock_tolerance_m = c.dock_tolerance_m;
-  if (c.v_max_mps > 0.0) p.v_max_mps = c.v_max_mps;
-  if (c.approach_half_angle_deg > 0.0) p.rendezvous.los_half_angle_deg = p.approach.los_half_angle_deg = c.approach_half_angle_deg;
-  if (c.docking_half_angle_deg > 0.0) p.docking.los_half_angle_deg = c.docking_half_angle_deg;
-  p.port_body_m = Eigen::Vector3d(c.port_body_m[0], c.port_body_m[1], c.port_body_m[2]);
-  p.finite_burns = c.finite_burns != 0;
-  return p;
-}
-
 // The law's state: the three-phase guidance, and the chaser's attitude controller where the truth has
 // the chaser's rotation (attitude.hpp).
 struct MpcLaw {
@@ -60,7 +34,7 @@ struct MpcLaw {
 
 void* create(const rvd_guidance_config* config, char* error, size_t error_size) {
   try {
-    GuidanceParams p = params_from(*config);
+    GuidanceParams p = params_from_config(*config);
     if (config->native == nullptr && config->chaser_inertia_kgm2 > 0.0) {
       p.attitude.inertia_kgm2 = config->chaser_inertia_kgm2;
       p.attitude.torque_max_nm = config->torque_max_nm;
@@ -153,6 +127,32 @@ int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_outp
 void destroy(void* law) { delete static_cast<MpcLaw*>(law); }
 
 }  // namespace
+
+GuidanceParams params_from_config(const rvd_guidance_config& c) {
+  if (c.native != nullptr) return *static_cast<const GuidanceParams*>(c.native);
+  GuidanceParams p;
+  p.thrusters.mass_kg = c.vehicle.mass_kg;
+  p.thrusters.thrust_N = c.vehicle.thrust_n;
+  p.thrusters.min_impulse_bit_s = c.vehicle.min_impulse_bit_s;
+  // The orbit altitude whose two-body mean motion is n (the guidance's parameter is the altitude).
+  if (c.mean_motion_rad_s > 0.0)
+    p.orbit_altitude_m = std::cbrt(kEarthMu_m3_s2 / (c.mean_motion_rad_s * c.mean_motion_rad_s)) - kEarthRadius_m;
+  PhaseParams* phases[3] = {&p.rendezvous, &p.approach, &p.docking};
+  for (int i = 0; i < 3; ++i) {
+    if (c.phase[i].period_s > 0.0) phases[i]->Ts_s = c.phase[i].period_s;
+    if (c.phase[i].dv_max_mps > 0.0) phases[i]->u_max_mps = c.phase[i].dv_max_mps;
+    if (c.phase[i].horizon > 0) phases[i]->N = static_cast<int>(c.phase[i].horizon);
+  }
+  if (c.keepout_radius_m > 0.0) p.keepout_radius_m = c.keepout_radius_m;
+  if (c.approach_stop_m > 0.0) p.approach_stop_m = c.approach_stop_m;
+  if (c.dock_tolerance_m > 0.0) p.dock_tolerance_m = c.dock_tolerance_m;
+  if (c.v_max_mps > 0.0) p.v_max_mps = c.v_max_mps;
+  if (c.approach_half_angle_deg > 0.0) p.rendezvous.los_half_angle_deg = p.approach.los_half_angle_deg = c.approach_half_angle_deg;
+  if (c.docking_half_angle_deg > 0.0) p.docking.los_half_angle_deg = c.docking_half_angle_deg;
+  p.port_body_m = Eigen::Vector3d(c.port_body_m[0], c.port_body_m[1], c.port_body_m[2]);
+  p.finite_burns = c.finite_burns != 0;
+  return p;
+}
 
 const rvd_guidance_law* mpc_law() {
   static const rvd_guidance_law law{RVD_GUIDANCE_ABI_VERSION, "fast_mpc_3phase", create, reset, step, destroy};

@@ -16,4 +16,10 @@ const rvd_guidance_law* mpc_law();
 // every law sees the same vehicle, periods and limits). `params`/`native` are left null.
 rvd_guidance_config generic_config(const GuidanceParams& p);
 
+// The guidance parameters a generic configuration describes: the defaults of params.hpp with its
+// vehicle, orbit, per-phase period, horizon and delta-v limit and geometry (config.native, when given,
+// instead). Margins are left at zero: nav::derive_margins() turns the configuration's error model into
+// them as the flight executable does. For laws that reuse the MPC's QPs or switching rules.
+GuidanceParams params_from_config(const rvd_guidance_config& config);
+
 }  // namespace rvd::guidance

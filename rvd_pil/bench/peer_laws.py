@@ -1,0 +1,272 @@
+"""Our Fast MPC beside its peer guidance laws (examples/guidance), per target, phase and horizon: instructions
+per solve, the cycle model's estimated target time, iterations, accuracy against our solver on the same QP,
+and the closed loop's delta-v; with the ratios to our Fast MPC.
+
+    python -m rvd_pil.bench.peer_laws                      quick: Case 1 (disturbed), three horizon sets, q7s and rpi3,
+                                                   and the determinism checks (ideal Case 1 twice per target)
+    python -m rvd_pil.bench.peer_laws --laws lq_ecg        only some peers (fast_mpc is always there)
+    python -m rvd_pil.bench.peer_laws --targets rpi3 --no-checks
+    python -m rvd_pil.bench.peer_laws --full               the PIL campaign's scenarios (Case 1 and two random starts)
+    python -m rvd_pil.bench.peer_laws --report-only        the page from the runs already made
+
+Each law is one PIL campaign (rvd_pil/bench/campaign.py: cross-built statically, run under QEMU user mode with the
+instruction counter and the block profiler, priced by the cycle model) in reports/peers/<law>/, with the
+same scenarios, horizon sets and noise seed as our MPC's. Each is the campaign `make pil GUIDANCE=<law folder>
+PIL_OUT=reports/peers/<law> PIL_ARGS="--scenarios case1_vbar --no-system"` makes (that command's runs are
+reused here, and these there). Accuracy: the CVXPYgen peers solve our MPC's
+own phase QPs (examples/guidance/cvxpygen_common): each is flown once more natively with law.shadow = 1,
+which solves every QP of the run also with our Fast MPC (reference settings) and records the difference
+of the first delta-v, of the objective (our OCP objective evaluated at both solutions) and the peer's
+violation of the QP's hard rows and dynamics. The LQ + command governor solves another problem (no
+horizon; its horizons are the MPC's, ignored): its figures are listed under each horizon for the
+ratios, and accuracy does not apply.
+
+Writes reports/peers/peers.html (one page), peers.csv and peers.json.
+"""
+from __future__ import annotations
+
+import argparse
+import html
+import json
+import math
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from rvd_pil import paths
+
+LAWS = {"lq_ecg": "examples/guidance/lq_ecg", "cvxpygen_qoco": "examples/guidance/cvxpygen_qoco",
+        "cvxpygen_osqp": "examples/guidance/cvxpygen_osqp"}
+# OSQP stops at its iteration cap on every rendezvous QP (examples/guidance/README.md): flown, it never
+# leaves the rendezvous phase, and each of its runs lasts the scenario's timeout. Asked for by name only.
+DEFAULT_LAWS = ("lq_ecg", "cvxpygen_qoco")
+SAME_QP = {"cvxpygen_qoco", "cvxpygen_osqp"}
+OURS = "fast_mpc"
+
+
+def run_campaign(law: str, out: Path, targets: list[str], scenarios: list[str], checks: bool) -> int:
+    from rvd_pil.bench import campaign
+
+    args = ["--targets", ",".join(targets), "--scenarios", ",".join(scenarios), "--no-system", "--out", str(out)]
+    if not checks:
+        args.append("--no-checks")
+    if law != OURS:
+        args += ["--guidance", str(paths.require_checkout("the peer guidance laws (examples/guidance)") / LAWS[law])]
+    return campaign.main(args)
+
+
+def run_accuracy(law: str, out: Path, scenarios: list[str], horizon_sets) -> None:
+    """Native shadow runs: every QP of the closed loop solved by the peer and by our Fast MPC."""
+    from rvd_pil.host_sim.guidance_build import build_native
+    from rvd_pil.host_sim.pil import run_pil
+    from rvd_pil.bench.campaign import _scenario
+
+    exe, manifest = build_native(paths.require_checkout("the peer guidance laws (examples/guidance)") / LAWS[law])
+    for horizons in horizon_sets:
+        for label in scenarios:
+            run_dir = out / f"{label.replace(':', '')}-N{'-'.join(map(str, horizons))}"
+            if (run_dir / "meta.json").exists() and json.loads((run_dir / "meta.json").read_text()).get("status") == "finished":
+                continue
+            if run_dir.exists():
+                import shutil
+
+                shutil.rmtree(run_dir)
+            summary, _ = run_pil(_scenario(label), seed=0, flight_exe=str(exe),
+                                 flight_args=[*manifest.flight_args(), "--set", "law.shadow=1",
+                                              "--horizon", ",".join(map(str, horizons))],
+                                 run_dir=run_dir, meta={"horizons": list(horizons), "scenario_label": label})
+            print(f"  accuracy {law} {label} N{horizons}: {summary.end}, dv {summary.dv_total_mps:.3f} m/s", flush=True)
+
+
+def accuracy_table(out: Path) -> pd.DataFrame:
+    rows = []
+    for meta_path in sorted(out.glob("*/meta.json")):
+        meta = json.loads(meta_path.read_text())
+        steps = pd.read_csv(meta_path.parent / "steps.csv", usecols=["step", "phase"])
+        vals = pd.read_csv(meta_path.parent / "law_values.csv")
+        wide = vals.pivot_table(index="step", columns="name", values="value").reset_index().merge(steps, on="step")
+        if "ref_du_mps" not in wide:
+            continue
+        for phase, g in wide.groupby("phase"):
+            if int(phase) not in (1, 2, 3):
+                continue
+            ok = g[(g["ref_ok"] == 1) & (g["peer_failed"] == 0)]
+            rows.append({"phase": {1: "rendezvous", 2: "approach", 3: "docking"}[int(phase)],
+                         "N": int(meta["horizons"][int(phase) - 1]), "scenario": meta.get("scenario_label"),
+                         "qps": len(g), "compared": len(ok),
+                         "du_max_mps": ok["ref_du_mps"].max(), "du_median_mps": ok["ref_du_mps"].median(),
+                         "dobj_rel_max": ok["ref_dobj_rel"].abs().max(), "viol_max": ok["peer_viol"].max()})
+    return pd.DataFrame(rows)
+
+
+def law_table(law: str, out: Path) -> pd.DataFrame:
+    """Per target, phase and horizon: the campaign's solve statistics and the closed loops' delta-v."""
+    from rvd_pil.bench import report
+
+    metas, df = report.load_campaign(out)
+    rows = report.solves(metas, df)
+    if rows.empty:
+        return pd.DataFrame()
+    stats = report.stats_table(rows)
+    dv = []
+    for m in metas:
+        if m.get("kind") != "timing":
+            continue
+        for i, phase in enumerate(("rendezvous", "approach", "docking")):
+            dv.append({"target": m["target"], "phase": phase, "N": int(m["horizons"][i]), "run": m["dir"],
+                       "dv_phase_mps": (m.get("dv_per_phase_mps") or {}).get(phase, math.nan),
+                       "dv_total_mps": m.get("dv_total_mps"), "docked": bool(m.get("docked")),
+                       "time_s": m.get("t_end_s"),
+                       "verdict": (m.get("safety") or {}).get("verdict", "?"),
+                       "faults": int(m.get("law_faults") or 0) if not isinstance(m.get("law_faults"), dict) else
+                       sum((m.get("law_faults") or {}).values())})
+    dv = pd.DataFrame(dv).groupby(["target", "phase", "N"], as_index=False).agg(
+        dv_phase_mps=("dv_phase_mps", "mean"), dv_total_mps=("dv_total_mps", "mean"),
+        docked=("docked", "all"), time_s=("time_s", "mean"), runs=("run", "count"),
+        verdicts=("verdict", lambda v: ",".join(sorted(set(v)))))
+    fails = rows.assign(failed=rows["guidance_status"].isin([2, 6])).groupby(["target", "phase_name", "N"],
+                                                                              as_index=False)["failed"].sum()
+    fails = fails.rename(columns={"phase_name": "phase", "failed": "safe_actions"})
+    t = stats.merge(dv, on=["target", "phase", "N"], how="left").merge(fails, on=["target", "phase", "N"], how="left")
+    t.insert(0, "law", law)
+    return t
+
+
+def side_by_side(base: Path, laws: list[str]) -> pd.DataFrame:
+    tables = []
+    for law in [OURS, *laws]:
+        out = base / law
+        if not (out / "campaign.json").exists():
+            print(f"{law}: no campaign in {out}", file=sys.stderr)
+            continue
+        t = law_table(law, out)
+        if t.empty:
+            continue
+        if law in SAME_QP and (base / "accuracy" / law).exists():
+            acc = accuracy_table(base / "accuracy" / law)
+            if not acc.empty:
+                acc = acc.groupby(["phase", "N"], as_index=False).agg(
+                    qps_compared=("compared", "sum"), du_max_mps=("du_max_mps", "max"),
+                    du_median_mps=("du_median_mps", "median"), dobj_rel_max=("dobj_rel_max", "max"),
+                    viol_max=("viol_max", "max"))
+                t = t.merge(acc, on=["phase", "N"], how="left")
+        tables.append(t)
+    if not tables:
+        return pd.DataFrame()
+    t = pd.concat(tables, ignore_index=True)
+    ours = t[t["law"] == OURS].set_index(["target", "phase", "N"])
+    for col, name in (("insns_mean", "insns_ratio"), ("target_ms_mean", "time_ratio"), ("insns_max", "insns_max_ratio"),
+                      ("dv_phase_mps", "dv_phase_ratio")):
+        t[name] = [r[col] / ours.loc[(r["target"], r["phase"], r["N"]), col]
+                   if (r["target"], r["phase"], r["N"]) in ours.index else math.nan for _, r in t.iterrows()]
+    order = {"rendezvous": 0, "approach": 1, "docking": 2}
+    t["_o"] = t["phase"].map(order)
+    t["_l"] = t["law"].map({OURS: 0, **{l: i + 1 for i, l in enumerate(laws)}})
+    return t.sort_values(["target", "_o", "N", "_l"]).drop(columns=["_o", "_l"]).reset_index(drop=True)
+
+
+def _f(v, fmt="{:.3g}") -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "—"
+    return fmt.format(v)
+
+
+def write_page(base: Path, t: pd.DataFrame, laws: list[str], settings: dict) -> Path:
+    cols = [("law", "law", "{}"), ("solves", "solves", "{:.0f}"), ("insns_mean", "instructions / solve (mean)", "{:,.0f}"),
+            ("insns_max", "max", "{:,.0f}"), ("insns_ratio", "÷ Fast MPC", "{:.3g}"),
+            ("target_ms_mean", "est. target ms (mean)", "{:.3f}"), ("target_ms_max", "max", "{:.3f}"),
+            ("time_ratio", "÷ Fast MPC", "{:.3g}"), ("iterations_mean", "iterations (mean)", "{:.1f}"),
+            ("iterations_max", "max", "{:.0f}"), ("du_max_mps", "max |Δu₀ − ours| [m/s]", "{:.1e}"),
+            ("dobj_rel_max", "max |ΔJ|/|J|", "{:.1e}"), ("viol_max", "max violation", "{:.1e}"),
+            ("safe_actions", "safe actions", "{:.0f}"), ("dv_phase_mps", "Δv phase [m/s]", "{:.3f}"),
+            ("dv_phase_ratio", "÷ Fast MPC", "{:.3g}"), ("dv_total_mps", "Δv run [m/s]", "{:.3f}"),
+            ("docked", "docked", "{}"), ("verdicts", "safety", "{}")]
+    parts = [f"<h1>Guidance peers beside our Fast MPC</h1><p>{html.escape(settings['what'])}</p>",
+             "<p>Instructions: counted by the QEMU plugin between the flight software's markers around the law's step "
+             "(navigation filter update and the law; identical from run to run). Estimated target time: the cycle "
+             "model's nominal cycles / clock (not calibrated on hardware). Accuracy (CVXPYgen peers only: they solve "
+             "our MPC's own QPs): native runs of the same scenarios with law.shadow = 1, every QP of the closed loop "
+             "also solved by our Fast MPC at its reference settings (tol 1e-10); the LQ + command governor solves "
+             "another, much smaller problem (its row is repeated under each horizon; it has none). Δv: the mean over "
+             "the scenarios of the closed loop's realised Δv in that phase (and the whole run), flown with that "
+             "horizon set. Safe actions: steps where the law commanded zero thrust because its solver did not "
+             "report solved (or the harness did).</p>"]
+    for target, g in t.groupby("target", sort=False):
+        parts.append(f"<h2>{html.escape(str(target))}</h2>")
+        for (phase, N), h in g.groupby(["phase", "N"], sort=False):
+            parts.append(f"<h3>{phase}, N = {N}</h3><table><tr>" + "".join(f"<th>{html.escape(c[1])}</th>" for c in cols) + "</tr>")
+            for _, r in h.iterrows():
+                parts.append("<tr>" + "".join(f"<td>{html.escape(_f(r.get(c[0]), c[2]) if c[0] != 'law' else str(r['law']))}</td>"
+                                              for c in cols) + "</tr>")
+            parts.append("</table>")
+    style = ("<style>body{font-family:sans-serif;margin:2em;max-width:1600px}table{border-collapse:collapse;margin-bottom:1em}"
+             "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right;font-size:90%}th{background:#eee}"
+             "td:first-child{text-align:left}</style>")
+    page = base / "peers.html"
+    page.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>Guidance peers</title>{style}</head>"
+                    f"<body>{''.join(parts)}</body></html>")
+    return page
+
+
+def summary_lines(t: pd.DataFrame) -> list[str]:
+    lines = []
+    for target, g in t.groupby("target", sort=False):
+        for law, h in g.groupby("law", sort=False):
+            if law == OURS:
+                continue
+            lines.append(f"{target} {law}: instructions per solve ÷ Fast MPC " +
+                         ", ".join(f"{r.phase[:4]} N{r.N} {_f(r.insns_ratio)}" for r in h.itertuples()) +
+                         "; est. time ÷ Fast MPC " + ", ".join(f"{_f(r.time_ratio)}" for r in h.itertuples()))
+    return lines
+
+
+def main(argv=None) -> int:
+    from rvd_pil.bench.campaign import HORIZON_SETS
+
+    ap = argparse.ArgumentParser(prog="python -m rvd_pil.bench.peer_laws", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+    ap.add_argument("--laws", default=",".join(DEFAULT_LAWS),
+                    help=f"comma-separated peers of {', '.join(LAWS)} (default {','.join(DEFAULT_LAWS)})")
+    ap.add_argument("--targets", default="q7s,rpi3")
+    ap.add_argument("--full", action="store_true", help="Case 1 and two seeded random starts (the PIL campaign's)")
+    ap.add_argument("--no-checks", action="store_true", help="skip the determinism checks of every campaign")
+    ap.add_argument("--out", type=Path, default=paths.reports_root() / "peers")
+    ap.add_argument("--report-only", action="store_true")
+    a = ap.parse_args(argv)
+    laws = [l for l in a.laws.split(",") if l]
+    unknown = [l for l in laws if l not in LAWS]
+    if unknown:
+        print(f"unknown peer(s) {unknown}; known: {', '.join(LAWS)}", file=sys.stderr)
+        return 2
+    targets = [t for t in a.targets.split(",") if t]
+    scenarios = ["case1_vbar", "random:1", "random:2"] if a.full else ["case1_vbar"]
+    base = a.out
+    base.mkdir(parents=True, exist_ok=True)
+    if not a.report_only:
+        for law in [OURS, *laws]:
+            print(f"== {law}", flush=True)
+            rc = run_campaign(law, base / law, targets, scenarios, not a.no_checks)
+            if rc:
+                print(f"{law}: campaign failed (exit {rc})", file=sys.stderr)
+                return rc
+            if law in SAME_QP:
+                run_accuracy(law, base / "accuracy" / law, scenarios, HORIZON_SETS)
+    t = side_by_side(base, laws)
+    if t.empty:
+        print("no campaign results", file=sys.stderr)
+        return 1
+    settings = {"what": f"Targets {', '.join(targets)}; scenarios {', '.join(scenarios)} with the nonlinear truth, J2, "
+                        f"drag, thrust and sensor noise (seed 0), finite burns, the control delay of the cycle model; "
+                        f"horizon sets {', '.join('/'.join(map(str, h)) for h in HORIZON_SETS)} (rendezvous/approach/docking)."}
+    t.to_csv(base / "peers.csv", index=False)
+    (base / "peers.json").write_text(json.dumps({"settings": settings, "rows": json.loads(t.to_json(orient="records"))}, indent=1))
+    page = write_page(base, t, laws, settings)
+    for line in summary_lines(t):
+        print(line)
+    print(f"report: {page}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
