@@ -204,8 +204,11 @@ def robustness_tables(runs: pd.DataFrame) -> dict[str, pd.DataFrame]:
                      "t_f_mean_min": d["t_f_min"].mean(), "t_f_std_min": d["t_f_min"].std(ddof=1),
                      "qp_failures": int(g["qp_failures"].sum()),
                      "safety_violations": g["safety_violations"].sum() if have_safety else math.nan,
-                     "unsafe_runs": int((g["safety_verdict"].notna() & ~g["safety_verdict"].isin(["safe", "ok", "pass"])).sum())
-                     if have_safety else math.nan})
+                     # a start inside a limit is the scenario's, not the guidance's: counted apart
+                     "unsafe_runs": int((g["safety_verdict"].notna() &
+                                         ~g["safety_verdict"].isin(["safe", "ok", "pass", "started_unsafe"])).sum())
+                     if have_safety else math.nan,
+                     "started_unsafe_runs": int((g["safety_verdict"] == "started_unsafe").sum()) if have_safety else math.nan})
     per_start = pd.DataFrame(rows)
     overall = []
     for values, g in per_start.groupby(point, sort=False, dropna=False):
@@ -222,6 +225,7 @@ def robustness_tables(runs: pd.DataFrame) -> dict[str, pd.DataFrame]:
                         "runs_with_safety_entry": int(r["safety_verdict"].notna().sum()),
                         "verdicts": ", ".join(f"{v} {n}" for v, n in r["safety_verdict"].value_counts().sort_index().items()),
                         "unsafe_runs": g["unsafe_runs"].sum() if have_safety else math.nan,
+                        "started_unsafe_runs": g["started_unsafe_runs"].sum() if have_safety else math.nan,
                         "safety_violations": g["safety_violations"].sum() if have_safety else math.nan})
     tables = {"per_start": per_start, "overall": pd.DataFrame(overall)}
     limits = [c for c in runs.columns if c.startswith("safety.")]
@@ -297,8 +301,11 @@ def robustness_figures(runs, tables, figures, out: Path) -> list[tuple[str, str]
                 ax.bar(x, order["safety_violations"], color="tab:red")
             ax.set_xticks(x, order["start"], rotation=90, fontsize=7)
             ax.set_ylabel("violations (all repeats)")
+            started = int(ps["started_unsafe_runs"].sum()) if "started_unsafe_runs" in ps else 0
             ax.set_title(f"safety monitor (on truth): {int(ps['unsafe_runs'].sum())} of {int(ps['runs'].sum())} runs "
-                         f"unsafe, {int(ps['safety_violations'].sum())} violations")
+                         f"unsafe, {int(ps['safety_violations'].sum())} violations"
+                         + (f" ({started} runs started inside a limit: not counted)" if started else ""))
+            ax.set_xlabel("starts, ordered by violations")
         else:
             ax.text(0.5, 0.5, "no safety entry in these run records\n(no truth-based safety monitor ran)",
                     ha="center", va="center", fontsize=12)
