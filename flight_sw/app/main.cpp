@@ -245,6 +245,8 @@ std::map<std::string, Param> named_params() {
   d("recovery_quadratic", [](AppConfig& c) -> double& { return c.guidance.recovery_quadratic; });
   d("recovery_speed_factor", [](AppConfig& c) -> double& { return c.guidance.recovery_speed_factor; });
   d("max_iter_accept_residual", [](AppConfig& c) -> double& { return c.guidance.max_iter_accept_residual; });
+  m["approach_lookahead_steps"] = integer([](AppConfig& c) -> int& { return c.guidance.approach_lookahead_steps; });
+  m["approach_lookahead_iterations"] = integer([](AppConfig& c) -> int& { return c.guidance.approach_lookahead_iterations; });
   d("nav.accel_noise_mps2_rthz", [](AppConfig& c) -> double& { return c.nav_filter.accel_noise_mps2_rthz; });
   d("nav.gate_chi2", [](AppConfig& c) -> double& { return c.nav_filter.gate_chi2; });
   d("nav.thrust_error_tau_s", [](AppConfig& c) -> double& { return c.nav_filter.thrust_error_tau_s; });

@@ -84,6 +84,7 @@ void Guidance::reset(Phase start) {
   holding_.reset();
   for (auto& s : solvers_) s->reset_warm_start();
   for (auto& s : recovery_solvers_) s->reset_warm_start();
+  lookahead_warm_ = false;
 }
 
 bool Guidance::ready_for_approach(const Vector6d& x, const TargetState& target, const EstimateQuality& u) const {
@@ -184,8 +185,49 @@ bool Guidance::solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Ve
   return true;
 }
 
+// The first approach solve would start cold (13-15 iterations against about 5 warm). While the
+// rendezvous plan predicts the approach entry (ready_for_approach on its planned state, target turned
+// to that time) within approach_lookahead_steps samples, the approach QP at that predicted state gets
+// up to approach_lookahead_iterations iterations per step, each step continuing the last one's
+// iterate (no shift: the entry instant stays the same while it comes closer). The entry's solve starts
+// from that iterate. A step without a prediction drops it: a stale iterate is no better a start than a
+// cold one.
+void Guidance::look_ahead(const solver::FastMpcSolver& rendezvous, const TargetState& target,
+                          const EstimateQuality& quality, double budget_left_us, bool carried, solver::Info& info) {
+  solver::FastMpcSolver& sol = *solvers_[index(Phase::Approach)];
+  const int steps = std::min(params_.approach_lookahead_steps, qps_[index(Phase::Rendezvous)]->N());
+  int entry = 0;
+  TargetState later = target;
+  if (budget_left_us >= 0.0 && params_.obstacle_capacity == 0 && !params_.holding_in(Phase::Approach)) {
+    for (int j = 1; j <= steps && entry == 0; ++j) {
+      later.q_lvlh_body = attitude_after(target, j * params_.rendezvous.Ts_s);
+      const Vector6d xj = rendezvous.x()[j];
+      if (ready_for_approach(xj, later, quality)) entry = j;
+    }
+  }
+  if (entry == 0) return;
+  PhaseQp& qp = *qps_[index(Phase::Approach)];
+  x0_ = rendezvous.x()[entry];
+  qp.build(x0_, later, quality);
+  if (!carried) sol.reset_warm_start();
+  solver::Settings& s = sol.settings();
+  const int cap = s.max_iter;
+  s.max_iter = std::min(cap, params_.approach_lookahead_iterations);
+  s.time_limit_us = budget_left_us;
+  if (observer_) observer_->before_solve();
+  sol.solve(qp.qp(), x0_);
+  if (observer_) observer_->after_solve();
+  s.max_iter = cap;
+  info = sol.info();
+  // Solved or stopped at the cap: an iterate to go on from (the solver keeps it as its warm start).
+  lookahead_warm_ = info.status == solver::Status::Solved || info.status == solver::Status::MaxIter;
+}
+
 Command Guidance::step(const NavInput& nav, double time_limit_us) {
   const Clock::time_point t0 = Clock::now();
+  // The look-ahead iterate serves the very next step only (look_ahead() renews it).
+  const bool carried = lookahead_warm_;
+  lookahead_warm_ = false;
   Command cmd;
   cmd.step = nav.step;
   cmd.t_s = nav.t_s;
@@ -210,6 +252,9 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
     if (phase_ == Phase::Approach && ready_for_docking(x, target, nav.quality)) phase_ = Phase::Docking;
     if (phase_ == Phase::Docking && docked(x, target)) phase_ = Phase::Docked;
     if (phase_ != before) plan_len_ = plan_next_ = 0;  // a plan is only valid with its own period
+    // The approach solve at the entry starts from the last step's look-ahead iterate, or cold.
+    if (phase_ == Phase::Approach && before == Phase::Rendezvous && !carried)
+      solvers_[index(Phase::Approach)]->reset_warm_start();
     cmd.phase = phase_;
 
     if (phase_ == Phase::Docked) {
@@ -234,6 +279,9 @@ Command Guidance::step(const NavInput& nav, double time_limit_us) {
       }
       if (usable) {
         cmd.dv_cmd_mps = plan_[0];
+        if (phase_ == Phase::Rendezvous && params_.approach_lookahead_steps > 0)
+          look_ahead(cmd.status == StepStatus::Recovered ? *recovery_solvers_[k] : *solvers_[k], target, nav.quality,
+                     left_us(), carried, cmd.lookahead);
       } else {
         fall_back(cmd);
         cmd.status = cmd.fallback == Fallback::ShiftedPlan ? StepStatus::ShiftedPlan : StepStatus::ZeroThrust;

@@ -58,6 +58,7 @@ struct Command {
   Fallback fallback = Fallback::None;
   solver::Info solver;             // of this step's phase-QP solve (status InvalidInput, 0 iterations when none ran)
   solver::Info recovery;           // of the recovery-QP solve, when the phase QP was infeasible
+  solver::Info lookahead;          // of the approach QP at the predicted entry (rendezvous steps; 0 iterations when none ran)
   bool solved = false;             // a QP was built and handed to the solver this step
   int plan_age = 0;                // periods since the QP whose input is commanded (0: this step's)
   double step_time_us = 0.0;       // whole step: checks, build, solve, allocation
@@ -126,6 +127,10 @@ class Guidance {
   HoldingRadius holding_;
   std::vector<Eigen::Vector3d> predicted_;  // linearization points, stages 0..N (capacity: longest N + 1)
   void predict_positions(const PhaseQp& qp, const Vector6d& x);
+  // After a rendezvous solve: iterations of the approach QP at the entry state its plan predicts.
+  void look_ahead(const solver::FastMpcSolver& rendezvous, const TargetState& target, const EstimateQuality& quality,
+                  double budget_left_us, bool carried, solver::Info& info);
+  bool lookahead_warm_ = false;  // the approach solver holds this step's look-ahead iterate
 };
 
 // The dissertation's scenarios (Table 3.2; sec 3.6): 1 V-bar, 2 R-bar, 3 rotating target (spin about body z).

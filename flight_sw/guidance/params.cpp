@@ -158,6 +158,8 @@ std::string GuidanceParams::validate() const {
        !nonnegative(attitude.Q_rate) || !positive(attitude.R_torque)))
     err << "attitude needs inertia_kgm2 > 0 (or 0: not controlled), torque_max_nm > 0, Q >= 0, R > 0; ";
   if (!nonnegative(max_iter_accept_residual)) err << "max_iter_accept_residual must be >= 0; ";
+  if (approach_lookahead_steps < 0 || approach_lookahead_iterations < 1)
+    err << "approach_lookahead_steps must be >= 0, approach_lookahead_iterations >= 1; ";
   if (!(margins.input_fraction >= 0.0 && margins.input_fraction < 1.0)) err << "margins.input_fraction must be in [0, 1); ";
   if (!(margins.plan_reserve_fraction >= 0.0 && margins.plan_reserve_fraction < 1.0))
     err << "margins.plan_reserve_fraction must be in [0, 1); ";

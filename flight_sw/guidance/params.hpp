@@ -142,6 +142,14 @@ struct GuidanceParams {
   double recovery_speed_factor = 10.0;  // the docking |v|_inf rows' penalty is this many times the cone's
   // A solve that stopped at the iteration cap is used when its primal residual is this small.
   double max_iter_accept_residual = 1e-6;
+  // Warm start of the first approach solve. A cold interior point needs 13-15 iterations on the first
+  // approach QP, a warm one about 5. While the rendezvous plan reaches the approach entry within
+  // approach_lookahead_steps samples, each rendezvous step also runs up to approach_lookahead_iterations
+  // iterations of the approach QP built at that predicted entry state (continuing the previous
+  // step's iterate): the first approach solve then starts from them. Speed only: the approach QP
+  // at the entry is solved to the usual tolerance either way. 0 steps: off.
+  int approach_lookahead_steps = 2;
+  int approach_lookahead_iterations = 8;
 
   // Obstacles (obstacles.hpp): rows for this many keep-out zones on stages 1..N of every phase QP,
   // 0 (the default) or kMaxObstacles. With 0 the QPs are the dissertation's, and obstacle lists are

@@ -257,6 +257,8 @@ void bind_guidance(py::module_& m) {
       .def_readwrite("recovery_weight", &GuidanceParams::recovery_weight)
       .def_readwrite("recovery_quadratic", &GuidanceParams::recovery_quadratic)
       .def_readwrite("max_iter_accept_residual", &GuidanceParams::max_iter_accept_residual)
+      .def_readwrite("approach_lookahead_steps", &GuidanceParams::approach_lookahead_steps)
+      .def_readwrite("approach_lookahead_iterations", &GuidanceParams::approach_lookahead_iterations)
       .def_readwrite("obstacle_capacity", &GuidanceParams::obstacle_capacity, "0 or MAX_OBSTACLES")
       .def_readwrite("obstacle_margin_m", &GuidanceParams::obstacle_margin_m)
       .def_readwrite("obstacle_penalty", &GuidanceParams::obstacle_penalty)
@@ -330,6 +332,8 @@ void bind_guidance(py::module_& m) {
       .def_property_readonly("objective", [](const Command& c) { return c.solver.objective; })
       .def_property_readonly("recovery_status", [](const Command& c) { return std::string(solver::to_string(c.recovery.status)); })
       .def_property_readonly("recovery_iterations", [](const Command& c) { return c.recovery.iterations; })
+      .def_property_readonly("lookahead_status", [](const Command& c) { return std::string(solver::to_string(c.lookahead.status)); })
+      .def_property_readonly("lookahead_iterations", [](const Command& c) { return c.lookahead.iterations; })
       .def("__repr__", [](const Command& c) {
         std::ostringstream s;
         s << "Command(step=" << c.step << ", phase=" << to_string(c.phase) << ", status=" << to_string(c.status)
