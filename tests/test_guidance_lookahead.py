@@ -2,7 +2,7 @@
 at the entry state the rendezvous plan predicts). Checked in closed loop against the impulsive CW plant:
 the rendezvous steps before the entry ran the look-ahead; the entry's solve reaches the optimum of the
 entry QP (Clarabel, an independent interior point solver) and the plan of the same loop flown without the
-look-ahead; it needs at most half the iterations of a cold solve of the same QP by the same solver."""
+look-ahead; it needs at most 60 % of the iterations of a cold solve of the same QP by the same solver."""
 import numpy as np
 import pytest
 
@@ -60,4 +60,4 @@ def test_first_approach_solve_starts_from_the_lookahead(case, approach_n):
     cold_solve = fsw.solve_ocp_qp(**qp, tol=1e-8, max_iter=200)
     assert cold_solve.status == "solved"
     assert cmds_cold[k].iterations == cold_solve.iterations
-    assert entry.iterations <= cold_solve.iterations // 2, (entry.iterations, cold_solve.iterations)
+    assert entry.iterations <= 0.6 * cold_solve.iterations, (entry.iterations, cold_solve.iterations)

@@ -146,9 +146,10 @@ struct GuidanceParams {
   // approach QP, a warm one about 5. While the rendezvous plan reaches the approach entry within
   // approach_lookahead_steps samples, each rendezvous step also runs up to approach_lookahead_iterations
   // iterations of the approach QP built at that predicted entry state (continuing the previous
-  // step's iterate): the first approach solve then starts from them. Speed only: the approach QP
+  // step's iterate): the first approach solve then starts from them (one step of 8: 5-8 iterations
+  // at the entry instead of 13-16; two steps: 3-5, for twice the rendezvous steps made costlier). Speed only: the approach QP
   // at the entry is solved to the usual tolerance either way. 0 steps: off.
-  int approach_lookahead_steps = 2;
+  int approach_lookahead_steps = 1;
   int approach_lookahead_iterations = 8;
 
   // Obstacles (obstacles.hpp): rows for this many keep-out zones on stages 1..N of every phase QP,
