@@ -449,8 +449,8 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
   const double slowdown = 0.9 * u_max_ * (1.0 - params_.margins.input_fraction) *
                           (1.0 - params_.margins.plan_reserve_fraction) *
                           std::max(0.5, 1.0 - params_.margins.estimate_sigmas * quality_.thrust_scale_sigma);
-  // Braking curve: the fastest closing speed from which per-period decrements of `brake_fraction` of the
-  // later stages' braking authority stop the chaser at the plane (discrete: Ts (c^2 / 2 dv + c / 2) = d).
+  // Braking curve: the fastest closing speed from which per-period decrements of approach_brake_fraction of
+  // the later stages' braking authority stop the chaser at the plane (discrete: Ts (c^2 / 2 dv + c / 2) = d).
   // Without it the cost has the plan brake at the last moment with all of that authority: when the
   // estimate of the braking thruster drops a few per cent during the braking (a thruster unused since the
   // rendezvous), the hard plane can then only be held through the CW coupling, by a lateral swing out of
