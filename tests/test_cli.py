@@ -47,7 +47,7 @@ def test_arm_executable_without_runner_names_the_cause(tmp_path):
     subprocess.run([cc, "-static", "-o", str(exe), str(src)], check=True)
     r = rvd_run("case1_vbar", "--truth", "cw", "--ideal", "--flight-sw", exe, "--out", tmp_path / "run")
     line = one_line_error(r)
-    assert "ARM (32-bit) executable" in line and "--target" in line
+    assert "ARM (32-bit) executable" in line and "--target" in line and '"qemu-arm -cpu' in line
     # and as --target for the wrong architecture: rpi3 is AArch64
     r = rvd_run("case1_vbar", "--target", "rpi3", "--flight-sw", exe, "--out", tmp_path / "run2")
     assert "target rpi3 needs AArch64" in one_line_error(r)

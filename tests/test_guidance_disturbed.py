@@ -70,3 +70,34 @@ def test_the_nominal_mpc_without_filter_or_margins_is_judged_unsafe(tmp_path, fl
     assert meta["safety"]["verdict"] == "unsafe"
     events = load_events(run_dir)
     assert (events["kind"] == "safety_violation").sum() == summary.safety["violations"]
+
+
+def approach_corridor_clearance_m(run_dir):
+    """The least distance inside the approach corridor over the approach phase, in truth (the monitor's
+    worst corridor margin of each period, sampled along the path; negative = outside)."""
+    from rvd_pil.host_sim.record import load_run
+
+    _, steps = load_run(run_dir)
+    return -float(steps.loc[steps["phase"] == 2, "safety_corridor_m"].max())
+
+
+@pytest.mark.parametrize("start", [56, 85])
+def test_a_braking_thruster_weaker_than_its_estimate_does_not_swing_the_approach_out_of_the_corridor(
+        tmp_path, flight_exe, start):
+    """Noise seed 30 lets the thruster that brakes these approaches (+y) drift 10 % weaker while it is
+    unused, from the rendezvous to the approach's braking; the filter learns it only once it fires. A plan
+    that brakes at the last moment with all of its authority can then hold the hard overshoot plane only
+    through the CW coupling, by a lateral swing out of the soft corridor: 7.2 m (start 56) and 7.4 m (85)
+    outside it inside r1 before the braking curve. With it the chaser stays metres inside."""
+    summary, run_dir = disturbed_run(tmp_path, scenario.random_scenario(start), seed=30)
+    assert_safe(summary)
+    assert approach_corridor_clearance_m(run_dir) >= 2.0
+
+
+def test_without_the_braking_curve_the_monitor_sees_the_lateral_swing(tmp_path, flight_exe):
+    """The same run with the braking curve off: the swing the test above guards against is there."""
+    summary, run_dir = disturbed_run(tmp_path, scenario.random_scenario(56), seed=30,
+                                     flight_args=("--set", "margins.approach_brake_fraction=0"))
+    assert summary.safety["verdict"] == "unsafe"
+    assert summary.safety["per_limit"]["approach_corridor"]["violations"] >= 1
+    assert approach_corridor_clearance_m(run_dir) <= -5.0

@@ -449,7 +449,19 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
   const double slowdown = 0.9 * u_max_ * (1.0 - params_.margins.input_fraction) *
                           (1.0 - params_.margins.plan_reserve_fraction) *
                           std::max(0.5, 1.0 - params_.margins.estimate_sigmas * quality_.thrust_scale_sigma);
+  // Braking curve: the fastest closing speed from which per-period decrements of approach_brake_fraction of
+  // the later stages' braking authority stop the chaser at the plane (discrete: Ts (c^2 / 2 dv + c / 2) = d).
+  // Without it the cost has the plan brake at the last moment with all of that authority: when the
+  // estimate of the braking thruster drops a few per cent during the braking (a thruster unused since the
+  // rendezvous), the hard plane can then only be held through the CW coupling, by a lateral swing out of
+  // the (soft) corridor. The distance is bounded below by closing at the stages' caps from the plane's
+  // distance now.
+  // (The holding radius takes the plane's place where it is on: no curve then.)
   const bool holding = params_.holding_in(Phase::Approach);
+  const Eigen::Vector3d axis0 = target.q_lvlh_body * Eigen::Vector3d::UnitX();
+  const double brake_dv = holding ? 0.0 : params_.margins.approach_brake_fraction * braking_authority_mps(axis0);
+  double reach = axis0.dot(x0.head<3>()) - plane_m;
+  double closing = std::max(closing0, 0.0);
   if (holding)
     fill_holding_setpoints(target);
   else
@@ -465,8 +477,16 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
       qp_.d[i](L.keepout_row) = -plane_m;
     }
     if (L.speed_row >= 0) {  // -a' v <= cap_i
+      double limit = cap;
+      if (brake_dv > 0.0) {
+        reach -= Ts_ * closing;
+        const double d = std::max(reach, 0.0);
+        limit = std::min(cap, 0.5 * (std::sqrt(brake_dv * brake_dv + 8.0 * brake_dv * d / Ts_) - brake_dv));
+      }
+      const double bound = std::max(limit, closing0 - i * slowdown);
       qp_.C[i].block<1, 3>(L.speed_row, 3) = -(q_i * Eigen::Vector3d::UnitX()).transpose();
-      qp_.d[i](L.speed_row) = std::max(cap, closing0 - i * slowdown);
+      qp_.d[i](L.speed_row) = bound;
+      closing = std::max(bound, 0.0);
     }
     if (L.cone_row >= 0) {  // the approach cone has its apex at the CoM; H rho - s <= -margin
       qp_.C[i].block<4, 3>(L.cone_row, 0) = pyramid_rows_lvlh(q_i, pp.los_half_angle_deg * kDeg);
@@ -474,6 +494,17 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
     }
   }
   if (holding) fill_holding_rows(x0, holding_radius_m_);  // in place of the overshoot plane
+}
+
+// Delta-v per period along `axis` that the later stages' input bounds (stage 1) allow every thruster
+// that brakes motion towards -axis: the smallest bound of the axes the docking axis has a part in.
+double PhaseQp::braking_authority_mps(const Eigen::Vector3d& axis) const {
+  const int row = stage(1).box_row;
+  if (row < 0) return 0.0;
+  double authority = u_max_;
+  for (int k = 0; k < 3; ++k)
+    if (std::abs(axis(k)) >= 0.1) authority = std::min(authority, qp_.d[1](row + (axis(k) > 0.0 ? 0 : 3) + k));
+  return authority;
 }
 
 void PhaseQp::build_docking(const Vector6d& x0, const TargetState& target) {

@@ -25,6 +25,11 @@ constexpr double kPlanReserve = 0.1;
 // runs, by 5 cm and 42 cm). At 0.8 m/s braking takes 110 s and 45 m: no run of 100 left the corridor,
 // and the mean delta-v fell by 0.45 m/s at +0.4 min.
 constexpr double kApproachSpeedCap_mps = 0.8;
+// Approach braking curve (when disturbed): the plan brakes with at most this fraction of its braking
+// authority. Braking with all of it at the last moment, a braking thruster found 6 % weaker than its
+// estimate in the middle of the braking (unused since the rendezvous, its force had drifted by 10 %) left
+// the overshoot plane reachable only through a lateral swing 7 m out of the corridor (2 of 5880 runs).
+constexpr double kApproachBrakeFraction = 0.75;
 }  // namespace
 
 guidance::Margins derive_margins(const ErrorModel& e, const guidance::GuidanceParams& p) {
@@ -34,6 +39,7 @@ guidance::Margins derive_margins(const ErrorModel& e, const guidance::GuidancePa
                          e.finite_burns;
   m.plan_reserve_fraction = disturbed ? kPlanReserve : 0.0;
   m.approach_speed_cap_mps = disturbed ? kApproachSpeedCap_mps : 0.0;
+  m.approach_brake_fraction = disturbed ? kApproachBrakeFraction : 0.0;
   m.estimate_sigmas = e.sigmas;
   const double chord = kSlideSpeed_mps * p.rendezvous.Ts_s;
   m.keepout_m = chord * chord / (8.0 * p.keepout_radius_m);

@@ -33,7 +33,9 @@ struct ErrorModel {
 //                                       than the prediction assumes
 //   approach_speed_cap_mps = 0.8        the approach phase's closing speed (braking at its limit from
 //                                       1.2 m/s, the CW coupling pushed it out of the corridor)
-// The reserve and the speed cap apply when anything disturbs the run.
+//   approach_brake_fraction = 0.75      and no faster than 75 % of the braking authority stops at the
+//                                       overshoot plane (a braking thruster found weaker mid-braking)
+// The reserve, the speed cap and the braking curve apply when anything disturbs the run.
 //   keepout_m       = (1 m/s Ts_r)^2 / (8 r1)   the sagitta of a period's chord round the sphere
 //   rotating_cone_factor = 2.5          a spinning target's corridor and plane turn between samples
 //   v_max_mps       = dv of one minimum impulse bit + 3 n^2 (r2 + 2 m) Ts_d: a correction smaller than

@@ -50,6 +50,9 @@ ELF_MACHINES = {0x03: "x86 (32-bit)", 0x28: "ARM (32-bit)", 0x3E: "x86-64", 0xB7
 HOST_ELF_MACHINE = {"x86_64": 0x3E, "amd64": 0x3E, "aarch64": 0xB7, "arm64": 0xB7, "armv7l": 0x28, "i686": 0x03}
 
 
+RUNNER_EXAMPLE = {0x28: "qemu-arm -cpu cortex-a9", 0xB7: "qemu-aarch64 -cpu cortex-a53"}
+
+
 def elf_machine(path: Path | str) -> int | None:
     """The ELF header's e_machine of `path`, None when it is not an ELF file (e.g. a script)."""
     try:
@@ -73,7 +76,7 @@ def check_runs_here(exe: Path | str) -> None:
         raise FlightLaunchError(
             f"{exe} is an {ELF_MACHINES.get(machine, f'ELF machine {machine:#x}')} executable and this host is "
             f"{ELF_MACHINES.get(host, platform.machine())}: run it under QEMU (rvd-run --target <name>, or "
-            "--runner \"qemu-arm -cpu cortex-a9\")")
+            f"--runner \"{RUNNER_EXAMPLE.get(machine, 'qemu-<arch> -cpu <model>')}\")")
 
 
 def find_flight_executable(explicit: Optional[str] = None, name: str = FLIGHT_EXE_NAME) -> Path:
