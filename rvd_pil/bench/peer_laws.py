@@ -19,7 +19,8 @@ which solves every QP of the run also with our Fast MPC (reference settings) and
 of the first delta-v, of the objective (our OCP objective evaluated at both solutions) and the peer's
 violation of the QP's hard rows and dynamics. The LQ + command governor solves another problem (no
 horizon; its horizons are the MPC's, ignored): its figures are listed under each horizon for the
-ratios, and accuracy does not apply.
+ratios, and accuracy does not apply. The same holds for cw_target, the plug-in interface's example
+(CW targeting and a glideslope, no optimisation): the floor of what a guidance step can cost.
 
 Writes reports/peers/peers.html (one page), peers.csv and peers.json.
 """
@@ -37,10 +38,10 @@ import pandas as pd
 from rvd_pil import paths
 
 LAWS = {"lq_ecg": "examples/guidance/lq_ecg", "cvxpygen_qoco": "examples/guidance/cvxpygen_qoco",
-        "cvxpygen_osqp": "examples/guidance/cvxpygen_osqp"}
+        "cvxpygen_osqp": "examples/guidance/cvxpygen_osqp", "cw_target": "examples/guidance/cw_target"}
 # OSQP stops at its iteration cap on every rendezvous QP (examples/guidance/README.md): flown, it never
 # leaves the rendezvous phase, and each of its runs lasts the scenario's timeout. Asked for by name only.
-DEFAULT_LAWS = ("lq_ecg", "cvxpygen_qoco")
+DEFAULT_LAWS = ("lq_ecg", "cvxpygen_qoco", "cw_target")
 SAME_QP = {"cvxpygen_qoco", "cvxpygen_osqp"}
 OURS = "fast_mpc"
 
@@ -188,7 +189,8 @@ def write_page(base: Path, t: pd.DataFrame, laws: list[str], settings: dict) -> 
              "model's nominal cycles / clock (not calibrated on hardware). Accuracy (CVXPYgen peers only: they solve "
              "our MPC's own QPs): native runs of the same scenarios with law.shadow = 1, every QP of the closed loop "
              "also solved by our Fast MPC at its reference settings (tol 1e-10); the LQ + command governor solves "
-             "another, much smaller problem (its row is repeated under each horizon; it has none). Δv: the mean over "
+             "another, much smaller problem and cw_target (CW targeting and a glideslope) none at all (their rows are "
+             "repeated under each horizon; they have none). Δv: the mean over "
              "the scenarios of the closed loop's realised Δv in that phase (and the whole run), flown with that "
              "horizon set. Safe actions: steps where the law commanded zero thrust because its solver did not "
              "report solved (or the harness did).</p>"]
