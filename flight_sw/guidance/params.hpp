@@ -90,7 +90,7 @@ struct Margins {
   // Approach phase: closing speed along the docking axis <= this (0: no cap), from stage 1 on, reached
   // from the current closing speed at 90 % of the planned authority per period (so always reachable).
   double approach_speed_cap_mps = 0.0;
-  // With the cap, and from stage 1 on: no faster than stops the chaser at the overshoot plane with this
+  // From stage 1 on: no faster than stops the chaser at the overshoot plane with this
   // fraction of the braking authority the plan's later stages have (0: no such limit). The rest is slack
   // for a braking thruster that turns out weaker than its estimate in the middle of the braking.
   double approach_brake_fraction = 0.0;

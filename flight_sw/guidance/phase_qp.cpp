@@ -35,7 +35,10 @@ PhaseQp::StageLayout PhaseQp::stage(int i) const {
       break;
     case Phase::Approach:
       if (i >= 1) L.keepout_row = row(1);  // the overshoot plane
-      if (i >= 1 && params_.margins.approach_speed_cap_mps > 0.0) L.speed_row = row(1);
+      // The closing-speed row carries the cap and the braking curve (none with a holding radius: no plane).
+      if (i >= 1 && (params_.margins.approach_speed_cap_mps > 0.0 ||
+                     (params_.margins.approach_brake_fraction > 0.0 && !params_.holding_in(Phase::Approach))))
+        L.speed_row = row(1);
       if (i >= 1 && cone_slacks_) {
         L.cone_row = row(4);
         soft(4);
@@ -477,11 +480,12 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
       qp_.d[i](L.keepout_row) = -plane_m;
     }
     if (L.speed_row >= 0) {  // -a' v <= cap_i
-      double limit = cap;
+      // No cap: faster than the plan can reach with all of its authority, so the row never binds.
+      double limit = cap > 0.0 ? cap : std::abs(closing0) + (i + 1) * u_max_;
       if (brake_dv > 0.0) {
         reach -= Ts_ * closing;
         const double d = std::max(reach, 0.0);
-        limit = std::min(cap, 0.5 * (std::sqrt(brake_dv * brake_dv + 8.0 * brake_dv * d / Ts_) - brake_dv));
+        limit = std::min(limit, 0.5 * (std::sqrt(brake_dv * brake_dv + 8.0 * brake_dv * d / Ts_) - brake_dv));
       }
       const double bound = std::max(limit, closing0 - i * slowdown);
       qp_.C[i].block<1, 3>(L.speed_row, 3) = -(q_i * Eigen::Vector3d::UnitX()).transpose();

@@ -30,6 +30,11 @@ constexpr double kApproachSpeedCap_mps = 0.8;
 // estimate in the middle of the braking (unused since the rendezvous, its force had drifted by 10 %) left
 // the overshoot plane reachable only through a lateral swing 7 m out of the corridor (2 of 5880 runs).
 constexpr double kApproachBrakeFraction = 0.75;
+// Undisturbed, the curve with all of the braking authority: the closing speed from which the chaser can
+// still stop at the overshoot plane. A plan's horizon need not reach the plane (approach N = 5 at Ts 5-20 s
+// sees 25-100 s ahead); without the curve such a plan closed faster than it could brake, met the plane
+// infeasible and left the corridor or hit the target in 500 of 500 ideal-world runs of the ch. 4 study.
+constexpr double kApproachBrakeFractionIdeal = 1.0;
 }  // namespace
 
 guidance::Margins derive_margins(const ErrorModel& e, const guidance::GuidanceParams& p) {
@@ -39,7 +44,7 @@ guidance::Margins derive_margins(const ErrorModel& e, const guidance::GuidancePa
                          e.finite_burns;
   m.plan_reserve_fraction = disturbed ? kPlanReserve : 0.0;
   m.approach_speed_cap_mps = disturbed ? kApproachSpeedCap_mps : 0.0;
-  m.approach_brake_fraction = disturbed ? kApproachBrakeFraction : 0.0;
+  m.approach_brake_fraction = disturbed ? kApproachBrakeFraction : kApproachBrakeFractionIdeal;
   m.estimate_sigmas = e.sigmas;
   const double chord = kSlideSpeed_mps * p.rendezvous.Ts_s;
   m.keepout_m = chord * chord / (8.0 * p.keepout_radius_m);

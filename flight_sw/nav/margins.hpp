@@ -34,8 +34,10 @@ struct ErrorModel {
 //   approach_speed_cap_mps = 0.8        the approach phase's closing speed (braking at its limit from
 //                                       1.2 m/s, the CW coupling pushed it out of the corridor)
 //   approach_brake_fraction = 0.75      and no faster than 75 % of the braking authority stops at the
-//                                       overshoot plane (a braking thruster found weaker mid-braking)
-// The reserve, the speed cap and the braking curve apply when anything disturbs the run.
+//                                       overshoot plane (a braking thruster found weaker mid-braking);
+//                             = 1       undisturbed: no faster than all of it stops there (a horizon
+//                                       shorter than the braking otherwise plans past the point of no return)
+// The reserve and the speed cap apply when anything disturbs the run; the braking curve always.
 //   keepout_m       = (1 m/s Ts_r)^2 / (8 r1)   the sagitta of a period's chord round the sphere
 //   rotating_cone_factor = 2.5          a spinning target's corridor and plane turn between samples
 //   v_max_mps       = dv of one minimum impulse bit + 3 n^2 (r2 + 2 m) Ts_d: a correction smaller than
