@@ -47,7 +47,7 @@ def eci_to_lvlh(r_t, v_t, r_c, v_c, normal_accel_mps2: float = 0.0) -> np.ndarra
     c = lvlh_basis(r_t, v_t)
     omega = lvlh_angular_velocity(r_t, v_t, normal_accel_mps2)
     rho = c @ (np.asarray(r_c, dtype=float) - np.asarray(r_t, dtype=float))
-    rho_dot = c @ (np.asarray(v_c, dtype=float) - np.asarray(v_t, dtype=float)) - np.cross(omega, rho)
+    rho_dot = c @ (np.asarray(v_c, dtype=float) - np.asarray(v_t, dtype=float)) - cross3(omega, rho)
     return np.concatenate((rho, rho_dot))
 
 
@@ -58,7 +58,7 @@ def lvlh_to_eci(r_t, v_t, x_lvlh, normal_accel_mps2: float = 0.0) -> tuple[np.nd
     x = np.asarray(x_lvlh, dtype=float)
     rho, rho_dot = x[0:3], x[3:6]
     r_c = np.asarray(r_t, dtype=float) + c.T @ rho
-    v_c = np.asarray(v_t, dtype=float) + c.T @ (rho_dot + np.cross(omega, rho))
+    v_c = np.asarray(v_t, dtype=float) + c.T @ (rho_dot + cross3(omega, rho))
     return r_c, v_c
 
 
