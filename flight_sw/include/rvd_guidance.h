@@ -191,7 +191,7 @@ typedef struct rvd_guidance_output {
                               solve log, its time and instructions in the telemetry's totals; 0: nothing
                               ran worth counting (docked, input rejected, budget spent before the solve) */
   uint32_t iterations;     /* solver iterations this step (0 without a solver) */
-  double solve_time_us;    /* wall time of the solve on this computer's clock [us]; < 0: the harness
+  double solve_time_us;    /* time of the solve on the flight clock (budget_s's) [us]; < 0: the harness
                               reports the whole step's time instead */
   double primal_residual;  /* inf-norm; < 0 when not applicable */
   double dual_residual;    /* inf-norm; < 0 when not applicable */
