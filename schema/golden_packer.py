@@ -32,7 +32,7 @@ LABEL_NONCE = b"rvd-pil v2 run nonce "
 MESSAGES = [
     ("hello", 1, "flight", 1, [
         ("arch", "16s", "aarch64"), ("cpu_model", "32s", "cortex-a53"), ("compiler", "48s", "gcc 12.2.0"),
-        ("build", "48s", "Release -O2 -static"), ("solver_mode", "B", 1), ("reserved", "B", 0),
+        ("build", "48s", "Release -O2 -static"), ("solver_mode", "B", 1), ("step_clock", "B", 1),
         ("solver_max_iter", "H", 100), ("solver_tol", "d", 1e-8), ("horizon", "3H", [30, 15, 12]),
         ("reserved2", "H", 0), ("period_s", "3d", [30.0, 20.0, 5.0]), ("max_pulse_s", "3d", [1.5, 1.0, 0.25]),
         ("deadline_fraction", "d", 0.5), ("pid", "I", 4242), ("session", "I", 1)]),
@@ -51,7 +51,7 @@ MESSAGES = [
         ("dual_residual", "d", 2e-10), ("objective", "d", -42.5)]),
     ("telemetry", 4, "flight", 9, [
         ("steps", "3I", [60, 15, 63]), ("overruns", "3I", [0, 1, 0]), ("mean_solve_us", "3d", [45.5, 30.25, 12.0]),
-        ("max_solve_us", "3d", [90.0, 60.5, 20.75]), ("max_step", "3I", [12, 70, 100]), ("reserved", "I", 0),
+        ("max_solve_us", "3d", [90.0, 60.5, 20.75]), ("max_step", "3I", [12, 70, 100]), ("step_clock", "I", 1),
         ("total_instructions", "3Q", [1000000, 2000000, 3000000]), ("peak_heap_bytes", "Q", 524288),
         ("max_rss_kb", "Q", 4096), ("nav_rejected", "I", 2), ("nav_duplicates", "I", 5), ("nav_stale", "I", 1),
         ("nav_future", "I", 2), ("nav_coalesced", "I", 3), ("rx_oversized", "I", 4), ("rx_untagged", "I", 5),

@@ -111,13 +111,17 @@ def test_target_runs_under_qemu_with_counts_and_estimated_delay(tmp_path):
     assert r.returncode == 0, r.stderr
     out = r.stdout
     # every time says where it comes from
-    assert "solve times, emulated wall time (host clock under QEMU user mode for rpi3: host time, not target time)" in out
+    assert "solve times, target time on the flight clock (instructions counted by the plugin x CPI / f_clk)" in out
     assert "instructions per solve (counting plugin, exact)" in out
     assert f"control delay: estimated target time = instructions x CPI {t.cpi.nominal:g}" in out
     assert "docked" in out
     meta = json.loads((tmp_path / "run" / "meta.json").read_text())
     assert meta["delay_model"] == "estimated" and meta["target"] == "rpi3"
     assert "qemu-aarch64" in meta["flight_command"][0]
+    # the flight's deadlines on the target time the delay is priced in (one CPI for both)
+    assert meta["flight_hello"]["step_clock"] == 1
+    i = meta["flight_command"].index("--target-clock")
+    assert meta["flight_command"][i + 1] == f"{t.cpi.nominal!r},{t.clock_hz!r}"
     # the delay applied at each step is the estimated target time of that step's solves
     steps = pd.read_csv(tmp_path / "run" / "steps.csv")
     counted = steps[steps["instructions"] > 0]

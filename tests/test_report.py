@@ -154,3 +154,28 @@ def test_runs_of_no_campaign_are_refused(tmp_path):
     (tmp_path / "campaign.json").unlink()
     with pytest.raises(campaign.CampaignConflict, match="no known campaign"):
         campaign.claim(tmp_path, campaign.Spec(targets=["rpi3"]))
+
+
+def test_a_flight_clock_on_target_time_is_never_shown_as_host_time(tmp_path):
+    """Runs whose flight clock was on target time (hello step_clock 1): their reported solve times are
+    target time, so the host time shown beside the dissertation's is the host's round trip of the
+    step, and the flight's own figures are labelled as the flight clock."""
+    import pandas as pd
+
+    report_campaign.make(tmp_path)
+    for meta_path in (tmp_path / "runs").rglob("meta.json"):
+        meta = json.loads(meta_path.read_text())
+        meta["flight_hello"]["step_clock"] = 1
+        meta_path.write_text(json.dumps(meta))
+        steps = pd.read_csv(meta_path.parent / "steps.csv")
+        steps["round_trip_ms"] = 100.0 + steps["step"]
+        steps.to_csv(meta_path.parent / "steps.csv", index=False)
+    report.write(tmp_path)
+    stats = pd.read_csv(tmp_path / "stats.csv")
+    docking = stats[stats["phase"] == "docking"]
+    assert (docking["wall_ms_max"] == 159.0).all()  # the round trip of the last docking step, 59
+    assert list(docking["flight_clock_ms_max"]) == pytest.approx([15.19, 15.19])  # its solve_time_us, 15 190 us
+    assert docking["wall_is_round_trip"].all()
+    page = (tmp_path / "report.html").read_text()
+    assert "emulated wall time" not in page and "ours QEMU round trip, mean [ms]" in page
+    assert "on target time" in page

@@ -23,7 +23,10 @@
 namespace rvd::app {
 
 namespace {
+// The link's timeouts are about the host peer, so they stay on the host's clock; the guidance step's
+// budget and times are on the flight clock (solver/elapsed.hpp), the target's under emulation.
 using Clock = std::chrono::steady_clock;
+using solver::StepClock;
 
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
@@ -168,6 +171,12 @@ FlightApp::FlightApp(AppConfig config)
   if (cfg_.guard_law) install_law_guard();
   if (cfg_.pmu_instructions && !counter_.pmu().usable())
     std::fprintf(stderr, "[flight_sw] no PMU instruction counts: %s\n", counter_.pmu().error().c_str());
+  if (cfg_.target_clock_cpi > 0.0) {
+    const StepClock c = solver::flight_clock().use_target(cfg_.target_clock_cpi, cfg_.target_clock_hz);
+    if (c != StepClock::Target)  // said once here, and in every hello and telemetry (step_clock)
+      std::fprintf(stderr, "[flight_sw] --target-clock: no instruction-counting plugin answered: the deadlines "
+                           "and step times are on the host's steady_clock\n");
+  }
 }
 
 void FlightApp::create_law() {
@@ -307,7 +316,7 @@ LawFault FlightApp::step_law(const rvd_nav_input& in, double budget_s, double ha
   const uint64_t heap_before = heap_in_use_bytes();
   volatile int rc = 0;
   int sig = 0;
-  const auto t0 = Clock::now();
+  const solver::TimePoint t0 = solver::clock_now();
   if (cfg_.guard_law) {
     arm_timer(hard_limit_s);
     sig = sigsetjmp(g_law_jump, 1);
@@ -323,7 +332,7 @@ LawFault FlightApp::step_law(const rvd_nav_input& in, double budget_s, double ha
     rc = law_->step(law_state_, &in, budget_s, &law_out_);
   }
   counter_.after_solve();
-  step_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+  step_us = solver::elapsed_us(t0);
   if (sig != 0) {
     law_disabled_ = true;
     law_out_ = rvd_guidance_output{};
@@ -383,6 +392,7 @@ msg::Hello FlightApp::hello(uint32_t session) const {
                    guidance::max_pulse_s(g.approach.u_max_mps, g.thrusters),
                    guidance::max_pulse_s(g.docking.u_max_mps, g.thrusters)};
   h.deadline_fraction = cfg_.deadline_fraction;
+  h.step_clock = static_cast<uint8_t>(solver::flight_clock().source());
   h.pid = static_cast<uint32_t>(getpid());
   h.session = session;
   return h;
@@ -398,6 +408,7 @@ msg::Telemetry FlightApp::telemetry() const {
     t.max_step[i] = log_.max_step[i];
     t.total_instructions[i] = log_.instructions[i];
   }
+  t.step_clock = static_cast<uint32_t>(solver::flight_clock().source());
   t.peak_heap_bytes = peak_heap_bytes_;
   t.max_rss_kb = max_rss_kb();
   const InputCounters& d = dropped_;
@@ -470,11 +481,11 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   }
   // The filter is part of the timed, counted guidance step.
   counter_.start_step(nav.step);
-  const auto t_filter = Clock::now();
+  const solver::TimePoint t_filter = solver::clock_now();
   counter_.before_solve();
   const nav::NavEstimate& est = nav_filter_->update(nav.t_s, z);
   counter_.after_solve();
-  const double filter_us = std::chrono::duration<double, std::micro>(Clock::now() - t_filter).count();
+  const double filter_us = solver::elapsed_us(t_filter);
   in.x_lvlh = est.update == nav::NavUpdate::Invalid ? z : est.x;  // an invalid input stays invalid
   in.quality.position_m = std::sqrt(est.P.diagonal().head<3>().maxCoeff());
   in.quality.velocity_mps = std::sqrt(est.P.diagonal().tail<3>().maxCoeff());
@@ -512,9 +523,14 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
 
   // The law's step, bracketed by the instruction counters (step_law), under the deadline: it gets
   // what the filter left of the budget, and a step still running at the end of the period is stopped.
-  const auto t_law = Clock::now();
+  // The stop is a host timer: under the target clock the host's time says nothing about the
+  // target's (emulation runs many times slower), so it then only stops a law that never returns,
+  // after the flight's idle timeout, the longest the flight waits for its host anyway.
+  const solver::TimePoint t_law = solver::clock_now();
   double law_us = 0.0;
-  const LawFault fault = step_law(li, std::max(budget_us - filter_us, 1e-3) * 1e-6, period_s, law_us);
+  const double hard_limit_s = solver::flight_clock().source() == StepClock::Target
+                                  ? std::max(period_s, cfg_.idle_timeout_s) : period_s;
+  const LawFault fault = step_law(li, std::max(budget_us - filter_us, 1e-3) * 1e-6, hard_limit_s, law_us);
   const uint64_t insns = counter_.instructions();
   const rvd_guidance_output& lo = law_out_;
   Eigen::Vector3d dv = Eigen::Vector3d::Zero();
@@ -548,7 +564,7 @@ std::optional<msg::Cmd> FlightApp::handle_nav(const msg::Nav& nav) {
   const double pulse_cap_s = std::min(guidance::max_pulse_s(pp.u_max_mps, cfg_.guidance.thrusters), pp.Ts_s);
   const guidance::Allocation a =
       guidance::allocate_thrusters(dv, pulse_cap_s, cfg_.guidance.thrusters, in.quality.thrust_scale);
-  const double step_us = filter_us + std::chrono::duration<double, std::micro>(Clock::now() - t_law).count();
+  const double step_us = filter_us + solver::elapsed_us(t_law);
   nav_filter_->command(nav.t_s, a.dv_nominal_mps, a.pulse_s);
 
   const bool computed = fault == LawFault::None && lo.computed != 0;

@@ -2,7 +2,7 @@
 //
 // On every nav message it runs one step of its guidance law (a plug-in behind
 // flight_sw/include/rvd_guidance.h; the three-phase MPC by default) under a deadline (a fraction of the phase's control
-// period, on the flight computer's own clock), publishes the cmd, and keeps the per-phase solve-time
+// period, on the flight clock: this computer's, or the target's under emulation), publishes the cmd, and keeps the per-phase solve-time
 // log that it also sends as telemetry. A nav it already answered (a resend after a lost message) is
 // answered again from the cached cmd, so a resend never changes the trajectory. Every message it
 // takes must carry this run's tag (msg::LinkAuth, the run's key from link_key.hpp); whatever it
@@ -61,7 +61,11 @@ struct AppConfig {
   // The navigation filter between the measurements and the guidance; its noise settings are the
   // error model's (the host passes the scenario's sensor and thrust models).
   nav::NavFilterParams nav_filter;
-  double deadline_fraction = 0.5;  // solve budget = fraction x Ts of the current phase
+  double deadline_fraction = 0.5;  // solve budget = fraction x Ts of the current phase, on the flight clock
+  // The flight clock (solver/elapsed.hpp): 0 = the host's steady_clock; > 0 = target time, the QEMU
+  // plugin's instruction count x target_clock_cpi / target_clock_hz (steady_clock, said so, when no
+  // plugin answers). Process-wide: the FlightApp sets it when built.
+  double target_clock_cpi = 0.0, target_clock_hz = 0.0;
   bool trivial_guidance = false;   // answer every nav with zero thrust at once (link latency benchmark)
   double idle_timeout_s = 300.0;   // give up when no nav arrives for this long after hello
   double connect_timeout_s = 60.0; // give up when the first connection does not come up in this time

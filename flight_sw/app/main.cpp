@@ -60,7 +60,12 @@ Guidance
   --max-iter N              solver iteration cap (all phases)
   --tol X                   solver tolerance (converged mode)
   --barrier K               barrier weight (fixed_barrier mode)
-  --deadline-fraction F     solve budget = F x Ts of the phase, on this computer's clock (default 0.5)
+  --deadline-fraction F     solve budget = F x Ts of the phase, on the flight clock (default 0.5)
+  --target-clock CPI,HZ     the flight clock: target time = instructions x CPI / HZ, the instructions
+                            counted by the QEMU plugin (user mode), for every deadline and every
+                            step and solve time; without it, or when no plugin answers (said so on
+                            stderr and in hello/telemetry), this computer's steady_clock. The link's
+                            timeouts stay on this computer's clock (they wait for the host).
   --set NAME=VALUE          any guidance or vehicle parameter (--list-params shows them with
                             their values; vectors comma-separated, choices by name); a plug-in
                             law's own parameters as --set law.NAME=VALUE
@@ -381,6 +386,13 @@ rvd::app::AppConfig parse(int argc, char** argv, bool& list_only, std::string& k
       const double k = parse_double(value(), a);
       for_each_phase(cfg.guidance, [&](PhaseParams& p) { p.solver.barrier = k; });
     } else if (a == "--deadline-fraction") cfg.deadline_fraction = parse_double(value(), a);
+    else if (a == "--target-clock") {
+      const auto v = split_numbers(value(), 2, "--target-clock");
+      if (!(v[0] > 0.0) || !(v[1] > 0.0) || !std::isfinite(v[0]) || !std::isfinite(v[1]))
+        throw std::invalid_argument("--target-clock: CPI and clock [Hz] must be > 0");
+      cfg.target_clock_cpi = v[0];
+      cfg.target_clock_hz = v[1];
+    }
     else if (a == "--set") {
       const std::string kv = value();
       const size_t eq = kv.find('=');

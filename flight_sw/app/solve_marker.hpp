@@ -7,26 +7,19 @@
 //   solver.solve(qp, x0);
 //   std::uint64_t insns = marker.end(step);   // 0 when not running under the plugin
 //
-// Marker ABI (shared with the plugin): syscall(kSolveMarkerSyscall, op, step, &slot), op 1 = begin,
-// 2 = end. Linux has no such syscall: a real kernel, or QEMU without the plugin, answers ENOSYS,
-// which is harmless. Before each call the slot holds kSlotRequest; the plugin answers a begin with
-// kSlotAck and an end with the instruction count. If the first begin is not acknowledged, no
-// plugin is listening and the marker switches itself off: from then on begin/end are a branch.
+// Marker ABI (shared with the plugin, flight_sw/solver/elapsed.hpp): syscall(kSolveMarkerSyscall,
+// op, step, &slot), op 1 = begin, 2 = end. Linux has no such syscall: a real kernel, or QEMU without
+// the plugin, answers ENOSYS, which is harmless. Before each call the slot holds kSlotRequest; the
+// plugin answers a begin with kSlotAck and an end with the instruction count. If the first begin is
+// not acknowledged, no plugin is listening and the marker switches itself off: from then on
+// begin/end are a branch.
 #pragma once
 
-#include <cerrno>
 #include <cstdint>
 
-#if defined(__linux__)
-#include <sys/syscall.h>
-#include <unistd.h>
-#endif
+#include "flight_sw/solver/elapsed.hpp"
 
 namespace rvd {
-
-inline constexpr long kSolveMarkerSyscall = 0x5256;  // "RV": unallocated on arm and aarch64 Linux
-inline constexpr std::uint64_t kSlotRequest = 0x525644534c4f543fULL;  // "RVDSLOT?"
-inline constexpr std::uint64_t kSlotAck = 0x525644534c4f5421ULL;      // "RVDSLOT!"
 
 #if defined(__linux__) && (defined(__arm__) || defined(__aarch64__))
 inline constexpr bool kSolveMarkersByDefault = true;  // the builds QEMU emulates
@@ -41,14 +34,14 @@ class SolveMarker {
 
   void begin(std::uint32_t step) {
     if (state_ == kOff) return;
-    call(kBegin, step);
+    call(kMarkerBegin, step);
     if (state_ == kProbe) state_ = (slot_ == kSlotAck) ? kCounting : kOff;
   }
 
   // Instructions executed since begin(step), counted by the plugin; 0 when not under the plugin.
   std::uint64_t end(std::uint32_t step) {
     if (state_ != kCounting) return 0;
-    call(kEnd, step);
+    call(kMarkerEnd, step);
     return slot_ == kSlotRequest ? 0 : slot_;
   }
 
@@ -56,18 +49,11 @@ class SolveMarker {
   bool counting() const { return state_ == kCounting; }
 
  private:
-  enum Op : long { kBegin = 1, kEnd = 2 };
   enum State { kProbe, kCounting, kOff };
 
-  void call(Op op, std::uint32_t step) {
+  void call(MarkerOp op, std::uint32_t step) {
     slot_ = kSlotRequest;
-#if defined(__linux__)
-    const int saved_errno = errno;  // ENOSYS must not leak into the caller's error handling
-    ::syscall(kSolveMarkerSyscall, static_cast<long>(op), static_cast<long>(step), &slot_);
-    errno = saved_errno;
-#else
-    (void)op, (void)step;
-#endif
+    marker_call(op, step, &slot_);
   }
 
   alignas(8) std::uint64_t slot_ = 0;  // the plugin writes here (guest memory)

@@ -11,7 +11,6 @@ namespace rvd::guidance {
 
 namespace {
 constexpr double kDeg = 3.14159265358979323846 / 180.0;
-using Clock = solver::SteadyClock;
 using solver::elapsed_us;
 }  // namespace
 
@@ -224,7 +223,7 @@ void Guidance::look_ahead(const solver::FastMpcSolver& rendezvous, const TargetS
 }
 
 Command Guidance::step(const NavInput& nav, double time_limit_us) {
-  const Clock::time_point t0 = Clock::now();
+  const solver::TimePoint t0 = solver::clock_now();  // the flight clock (elapsed.hpp)
   // The look-ahead iterate serves the very next step only (look_ahead() renews it).
   const bool carried = lookahead_warm_;
   lookahead_warm_ = false;

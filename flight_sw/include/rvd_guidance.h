@@ -191,7 +191,7 @@ typedef struct rvd_guidance_output {
                               solve log, its time and instructions in the telemetry's totals; 0: nothing
                               ran worth counting (docked, input rejected, budget spent before the solve) */
   uint32_t iterations;     /* solver iterations this step (0 without a solver) */
-  double solve_time_us;    /* wall time of the solve on this computer's clock [us]; < 0: the harness
+  double solve_time_us;    /* time of the solve on the flight clock (budget_s's) [us]; < 0: the harness
                               reports the whole step's time instead */
   double primal_residual;  /* inf-norm; < 0 when not applicable */
   double dual_residual;    /* inf-norm; < 0 when not applicable */
@@ -221,10 +221,13 @@ typedef struct rvd_guidance_law {
   /* NULL on failure, with a one-line reason written to error[0..error_size-1] (NUL-terminated). */
   void* (*create)(const rvd_guidance_config* config, char* error, size_t error_size);
   void (*reset)(void* law);
-  /* budget_s: wall time the step may take on this computer's clock [s] (> 0). Returns 0; non-zero is a
-   * law fault (zero thrust). The whole step is counted (instructions, cycle model): a law that reads
-   * the clock in it should convert the reading without a value-dependent path (on Armv7, libgcc's
-   * int64-to-double routine is one; flight_sw/solver/elapsed.hpp is not), or its estimate varies
+  /* budget_s: time the step may take on the flight clock [s] (> 0): this computer's, or under QEMU user
+   * mode with --target-clock target time (instructions x CPI / f_clk); the harness checks the step
+   * on that clock. A C++ law measures it with rvd::solver::clock_now() / elapsed_us()
+   * (flight_sw/solver/elapsed.hpp); a law on its own clock sees host time under emulation. Returns 0;
+   * non-zero is a law fault (zero thrust). The whole step is counted (instructions, cycle model): a
+   * law that reads a clock in it should convert the reading without a value-dependent path (on
+   * Armv7, libgcc's int64-to-double routine is one; elapsed.hpp's is not), or its estimate varies
    * with the clock. */
   int (*step)(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_output* out);
   void (*destroy)(void* law);

@@ -154,7 +154,7 @@ struct Hello {
   std::array<char, 48> compiler{};  // compiler and version
   std::array<char, 48> build{};  // build type and flags summary
   uint8_t solver_mode = 0;  // 0 fixed_barrier (Wang-Boyd), 1 converged
-  uint8_t reserved = 0;  // 0
+  uint8_t step_clock = 0;  // clock of the deadline and the step and solve times: 0 host steady_clock, 1 target (QEMU plugin instructions x CPI / f_clk), 2 target asked for, no plugin answered: host steady_clock
   uint16_t solver_max_iter = 0;  // iteration cap
   double solver_tol = 0;  // relative tolerance (converged mode)
   std::array<uint16_t, 3> horizon{};  // prediction horizon N per phase (rendezvous, approach, docking)
@@ -188,7 +188,7 @@ inline std::size_t encode(const Hello& m, uint8_t* out, std::size_t cap, Error* 
   std::memcpy(p, m.build.data(), 48);
   p += 48;
   wire::put<uint8_t>(p, m.solver_mode);
-  wire::put<uint8_t>(p, m.reserved);
+  wire::put<uint8_t>(p, m.step_clock);
   wire::put<uint16_t>(p, m.solver_max_iter);
   wire::put(p, m.solver_tol);
   for (auto v : m.horizon) wire::put<uint16_t>(p, v);
@@ -223,7 +223,7 @@ inline Error decode(const uint8_t* data, std::size_t n, Hello& m) {
   std::memcpy(r.build.data(), p, 48);
   p += 48;
   r.solver_mode = wire::get<uint8_t>(p);
-  r.reserved = wire::get<uint8_t>(p);
+  r.step_clock = wire::get<uint8_t>(p);
   r.solver_max_iter = wire::get<uint16_t>(p);
   r.solver_tol = wire::get<double>(p);
   for (auto& v : r.horizon) v = wire::get<uint16_t>(p);
@@ -322,8 +322,8 @@ struct Cmd {
   std::array<double, 3> dv_cmd_lvlh_mps{};  // delta-v the MPC asked for [m/s]
   std::array<double, 3> dv_alloc_lvlh_mps{};  // delta-v the pulses realise nominally [m/s]
   std::array<double, 6> pulse_s{};  // pulse widths of thrusters +x, -x, +y, -y, +z, -z [s]
-  double solve_time_us = 0;  // solver wall time on the flight computer's clock [us]
-  double step_time_us = 0;  // whole guidance step (QP build + solve + allocation) [us]
+  double solve_time_us = 0;  // solver time on the flight clock (hello step_clock) [us]
+  double step_time_us = 0;  // whole guidance step (filter, QP build, solve, allocation) on the flight clock [us]
   uint64_t instructions = 0;  // guest instructions in the solve (QEMU plugin), 0 when unknown
   uint16_t iterations = 0;  // solver iterations
   uint16_t reserved = 0;  // 0
@@ -426,7 +426,7 @@ struct Telemetry {
   std::array<double, 3> mean_solve_us{};  // mean solve time per phase [us]
   std::array<double, 3> max_solve_us{};  // max solve time per phase [us]
   std::array<uint32_t, 3> max_step{};  // step k that hit the max, per phase
-  uint32_t reserved = 0;  // 0
+  uint32_t step_clock = 0;  // clock of the times above and the overruns (as hello's step_clock; 2 also when the plugin fell silent during the run)
   std::array<uint64_t, 3> total_instructions{};  // sum of solve instructions per phase (0 when unknown)
   uint64_t peak_heap_bytes = 0;  // peak heap in use by the flight software (malloc statistics)
   uint64_t max_rss_kb = 0;  // peak resident set of the process (under qemu-user: of QEMU itself)
@@ -462,7 +462,7 @@ inline std::size_t encode(const Telemetry& m, uint8_t* out, std::size_t cap, Err
   for (auto v : m.mean_solve_us) wire::put(p, v);
   for (auto v : m.max_solve_us) wire::put(p, v);
   for (auto v : m.max_step) wire::put<uint32_t>(p, v);
-  wire::put<uint32_t>(p, m.reserved);
+  wire::put<uint32_t>(p, m.step_clock);
   for (auto v : m.total_instructions) wire::put<uint64_t>(p, v);
   wire::put<uint64_t>(p, m.peak_heap_bytes);
   wire::put<uint64_t>(p, m.max_rss_kb);
@@ -501,7 +501,7 @@ inline Error decode(const uint8_t* data, std::size_t n, Telemetry& m) {
   for (auto& v : r.mean_solve_us) v = wire::get<double>(p);
   for (auto& v : r.max_solve_us) v = wire::get<double>(p);
   for (auto& v : r.max_step) v = wire::get<uint32_t>(p);
-  r.reserved = wire::get<uint32_t>(p);
+  r.step_clock = wire::get<uint32_t>(p);
   for (auto& v : r.total_instructions) v = wire::get<uint64_t>(p);
   r.peak_heap_bytes = wire::get<uint64_t>(p);
   r.max_rss_kb = wire::get<uint64_t>(p);

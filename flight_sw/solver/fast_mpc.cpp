@@ -73,7 +73,7 @@ bool FastMpcSolver::inputs_ok(const OcpQp& qp, const Vector& x0) const {
 }
 
 Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
-  t_start_ = Clock::now();
+  t_start_ = clock_now();
   info_ = Info{};
   Status st = Status::InvalidInput;
   if (!settings_.invalid() && inputs_ok(qp, x0)) {

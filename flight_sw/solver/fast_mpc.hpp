@@ -28,10 +28,10 @@
 // -> info(), x(), u(), lambda(), pi(), soft_slack().
 #pragma once
 
-#include <chrono>
 #include <memory>
 #include <vector>
 
+#include "flight_sw/solver/elapsed.hpp"
 #include "flight_sw/solver/ocp_qp.hpp"
 #include "flight_sw/solver/settings.hpp"
 
@@ -76,7 +76,6 @@ class FastMpcSolver {
   bool time_up() const;
 
  private:
-  using Clock = std::chrono::steady_clock;
   bool inputs_ok(const OcpQp& qp, const Vector& x0) const;
   void publish(const OcpQp& qp);  // iterate -> x_, u_, lam_, pi_, sig_
 
@@ -86,7 +85,7 @@ class FastMpcSolver {
   std::unique_ptr<detail::Workspace> work_;
   const detail::Kernels* kernels_ = nullptr;
   std::vector<Vector> x_, u_, lam_, pi_, sig_;  // the solution, sized once
-  Clock::time_point t_start_;
+  TimePoint t_start_;  // on the flight clock (elapsed.hpp)
   bool has_warm_ = false;
   bool shifted_ = false;  // the warm plan was shifted: its tail x_N needs the new QP's dynamics
   friend struct SolverAccess;

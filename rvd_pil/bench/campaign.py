@@ -14,7 +14,8 @@ Per target:
      under QEMU: delta-v agreement, instruction counts and cycle estimates identical run to run;
   3. user mode + instruction counter + block profiler (rvd_pil/qemu/plugin/): every (scenario x horizon
      set) run, nonlinear truth (J2, drag), thruster and sensor noise, control delay = estimated
-     target time (instructions x the cycle model's mean CPI on the ideal Case 1 run);
+     target time (instructions x the cycle model's mean CPI on the ideal Case 1 run); the flight
+     software takes its deadlines on the same target time (--target-clock: that CPI, the target's clock);
      each run's solves priced by the cycle model (rvd_pil/qemu/cycles.py) into its cycles.csv; the cache
      model runs in the ideal Case 1, the timing runs borrow its per-block miss rates;
   4. the cycle model's microbenchmarks for the target's CPU (rvd_pil/bench/microbench/) beside the
@@ -200,11 +201,14 @@ class Campaign:
                 "block_profile": {"cache": model.cache_geometry, "cache_scope": "solves"}}
         fp_base = json.dumps([base, spec.truth, spec.noise, spec.seed], sort_keys=True)
 
-        def user_mode(run_dir: Path, plugin_log: Path, cache: bool = True):
+        def user_mode(run_dir: Path, plugin_log: Path, cpi: float, cache: bool = True):
+            # The flight's deadlines on target time at the CPI of the run's control delay (the
+            # counter answers its clock reads): the emulator's speed then decides nothing.
             counter = plugin.InsnCounter(log=plugin_log, library=lib)
             profiler = plugin.BlockProfiler(out=run_dir.with_suffix(".blocks"),
                                             cache=model.cache_geometry if cache else None, library=profile_lib)
-            return lambda args: user.command(t, exe.path, args, plugin=[counter, profiler])
+            clock = user.target_clock_args(cpi, t.clock_hz)
+            return lambda args: user.command(t, exe.path, [*args, *clock], plugin=[counter, profiler])
 
         def priced(run_dir: Path, miss_rates_from: Path | None = None) -> Path:
             return cycles.price_run(run_dir.with_suffix(".blocks"), exe.path, model, run_dir / "cycles.csv",
@@ -224,16 +228,18 @@ class Campaign:
             reps = []
             for rep in (1, 2):
                 run_dir = tdir / f"case1-ideal-{rep}"
-                fp = hashlib.sha256(f"{fp_base}ideal{rep}".encode()).hexdigest()[:16]
+                fp = hashlib.sha256(f"{fp_base}ideal{rep}clock{delay_cpi}".encode()).hexdigest()[:16]
                 # Every byte both sides send repeats in the two runs (run id, link key, both ZenohIDs
                 # and sequence numbers), so the flight's allocations, and with them the addresses
                 # the cache model sees in the solves, are the same in both.
                 reps.append(self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True,
-                                     flight_command=user_mode(run_dir, run_dir.with_suffix(".insns")),
+                                     flight_command=user_mode(run_dir, run_dir.with_suffix(".insns"), delay_cpi),
                                      flight_args=["--session-seed", "1"],
                                      config=ServerConfig(run_id="case1-ideal", zenoh_id=HOST_ZENOH_ID,
                                                          link_key=CHECK_LINK_KEY, zenoh_lease_ms=60000),
-                                     meta={**ideal_meta, "mode": "user"}))
+                                     meta={**ideal_meta, "mode": "user",
+                                           "flight_clock": {"cpi": delay_cpi, "clock_hz": t.clock_hz,
+                                                            "cpi_source": delay_source}}))
                 priced(run_dir)
                 info["runs"].append(str(run_dir.relative_to(self.out)))
             info["checks"]["native_vs_qemu"] = {"native_dv_mps": native.get("dv_total_mps"),
@@ -260,10 +266,11 @@ class Campaign:
                 fp = hashlib.sha256(f"{fp_base}{label}{horizons}{delay_cpi}{cache}".encode()).hexdigest()[:16]
                 cfg = ServerConfig(delay_model="estimated", cpi=delay_cpi, clock_hz=t.clock_hz)
                 self.run(run_dir, label, fingerprint=fp,
-                         flight_command=user_mode(run_dir, run_dir.with_suffix(".insns"), cache=cache),
+                         flight_command=user_mode(run_dir, run_dir.with_suffix(".insns"), delay_cpi, cache=cache),
                          flight_args=["--horizon", ",".join(map(str, horizons))] if horizon_set else [], config=cfg,
                          meta={**base, "mode": "user", "horizons": horizons, "kind": "timing",
                                "delay_cpi": delay_cpi, "delay_cpi_source": delay_source,
+                               "flight_clock": {"cpi": delay_cpi, "clock_hz": t.clock_hz, "cpi_source": delay_source},
                                "memory_term": "cache model" if cache else
                                f"miss rates of {reference.relative_to(self.out)}"})
                 priced(run_dir, None if cache else reference / "cycles.miss-rates.json")

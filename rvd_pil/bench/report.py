@@ -4,7 +4,11 @@ records of a campaign directory (rvd_pil/bench/campaign.py).
     python -m rvd_pil.bench.report reports/pil        rebuild report.html, *.png, stats.csv, runs.csv, report.json
 
 Timing sources, never mixed up:
-  - emulated wall time: the flight software's own clock under qemu-user (host time, noisy);
+  - the flight clock: what the flight software's deadlines and reported solve times are on; under
+    qemu-user with --target-clock (every campaign run) target time, instructions x CPI / f_clk, else
+    the host's clock;
+  - emulated host time: the host's round trip of a step (nav out, cmd in) when the flight clock was
+    on target time, else the flight's own solve time on the host clock (host time, noisy);
   - instructions: counted by our TCG plugin around every solver call of a guidance step (deterministic);
   - cycles: the cycle model (rvd_pil/qemu/cycles.py): per-block execution counts inside the same markers x
     llvm-mca block costs per CPU, corrected where LLVM disagrees with published timings, plus the
@@ -101,6 +105,13 @@ def solves(metas: list[dict], df: pd.DataFrame) -> pd.DataFrame:
         rows[f"target_us_{band}"] = [c / clock[r] * 1e6 for c, r in zip(rows[f"cyc_cycles_{band}"], rows["run"])]
     rows["cpi_model"] = rows["cyc_cycles_nominal"] / rows["instructions"]
     rows["budget_us"] = [frac[r] * ts * 1e6 for r, ts in zip(rows["run"], rows["cmd_period_s"])]
+    # Emulated host time. A flight clock on target time (hello step_clock 1) reports target time, so
+    # the host's figure is then its round trip of the step: nav out to cmd in, which adds the filter,
+    # the allocation, the link and the host's own work to the solve (an upper bound of its host time).
+    step_clock = {m["dir"]: (m.get("flight_hello") or {}).get("step_clock", 0) for m in metas}
+    rows["flight_clock_target"] = [step_clock.get(r, 0) == 1 for r in rows["run"]]
+    round_trip_us = rows["round_trip_ms"] * 1e3 if "round_trip_ms" in rows else math.nan
+    rows["host_wall_us"] = np.where(rows["flight_clock_target"], round_trip_us, rows["solve_time_us"])
     rows["cpu_load"] = rows["target_us_nominal"] / (rows["cmd_period_s"] * 1e6)
     return rows
 
@@ -127,8 +138,10 @@ def stats_table(rows: pd.DataFrame) -> pd.DataFrame:
             "target_ms_cpi_mean": g["target_us_cpi_nominal"].mean() / 1e3,
             "target_ms_cpi_max": g["target_us_cpi_nominal"].max() / 1e3,
             "calibrated": bool(g["cyc_calibrated"].all()),
-            "wall_ms_mean": g["solve_time_us"].mean() / 1e3, "wall_ms_p99": g["solve_time_us"].quantile(0.99) / 1e3,
-            "wall_ms_max": g["solve_time_us"].max() / 1e3,
+            "wall_ms_mean": g["host_wall_us"].mean() / 1e3, "wall_ms_p99": g["host_wall_us"].quantile(0.99) / 1e3,
+            "wall_ms_max": g["host_wall_us"].max() / 1e3,
+            "wall_is_round_trip": bool(g["flight_clock_target"].any()),
+            "flight_clock_ms_mean": g["solve_time_us"].mean() / 1e3, "flight_clock_ms_max": g["solve_time_us"].max() / 1e3,
             "iterations_mean": g["iterations"].mean(), "iterations_max": g["iterations"].max(),
             "overruns_flight_clock": int(g["overrun"].sum()),
             "deadline_misses_est": int((g["target_us_high"] > g["budget_us"]).sum()),
@@ -220,18 +233,28 @@ def safety_tables(metas: list[dict]) -> tuple[pd.DataFrame, pd.DataFrame]:
     return per_run, table
 
 
+def host_time_label(rows: pd.DataFrame) -> str:
+    """What the emulated host time of these solves is (solves()'s host_wall_us)."""
+    if len(rows) and rows["flight_clock_target"].all():
+        return "emulated host time: round trip of the step, nav out to cmd in"
+    if len(rows) and rows["flight_clock_target"].any():
+        return "emulated host time: round trip of the step (flight clock on target time) or the flight's host clock"
+    return "emulated wall time, qemu-user on this host"
+
+
 def plot_histograms(rows: pd.DataFrame, target: str, path: Path, cpu_label: str) -> None:
-    """Per phase: the estimated target time (top) and the emulated wall time (bottom), one step
+    """Per phase: the estimated target time (top) and the emulated host time (bottom), one step
     histogram per horizon, on a log time axis that reaches the deadline (marked) so that the margin
-    is visible; the dissertation's mean CVXGEN QEMU wall time is marked beside our wall times only
-    (the like-for-like pair)."""
+    is visible; the dissertation's mean CVXGEN QEMU wall time is marked beside our host times only
+    (the closest pair: both host time)."""
     g = rows[rows["target"] == target]
+    host_label = host_time_label(g)
     fig, axes = plt.subplots(2, 3, figsize=(15, 7.5))
     for j, phase in enumerate(("rendezvous", "approach", "docking")):
         gp = g[g["phase_name"] == phase]
         deadline_ms = gp["budget_us"].max() / 1e3 if len(gp) else math.nan
         for i, (col, label) in enumerate((("target_us_nominal", f"estimated target time on {cpu_label} [ms]"),
-                                          ("solve_time_us", "emulated wall time, qemu-user on this host [ms]"))):
+                                          ("host_wall_us", f"{host_label} [ms]"))):
             ax = axes[i, j]
             data = [(n, gp[gp["N"] == n][col].to_numpy() / 1e3) for n in sorted(gp["N"].unique())]
             data = [(n, d[d > 0]) for n, d in data if (d > 0).any()]
@@ -264,7 +287,8 @@ def plot_histograms(rows: pd.DataFrame, target: str, path: Path, cpu_label: str)
 
 
 def plot_scaling(table: pd.DataFrame, path: Path, cpu_labels: dict, host_cpu: str) -> None:
-    """Top: QEMU wall times, ours beside the dissertation's (like for like, both host time).
+    """Top: QEMU host times, ours beside the dissertation's (both host time; ours the step's round trip
+    when the flight clock was on target time).
     Bottom: our estimated target times per CPU with the deadline, a series of their own."""
     fig, axes = plt.subplots(2, 3, figsize=(15, 8))
     for j, phase in enumerate(("rendezvous", "approach", "docking")):
@@ -279,14 +303,15 @@ def plot_scaling(table: pd.DataFrame, path: Path, cpu_labels: dict, host_cpu: st
         ax.plot(list(ref), list(ref.values()), "ks--", label="dissertation: CVXGEN, QEMU full-system ARM")
         if len(t):
             bx.axhline(t["deadline_ms"].max(), color="tab:red", lw=2, label=f"deadline {_fmt(t['deadline_ms'].max())} ms")
-        for x, title in ((ax, "QEMU wall time (host time)"), (bx, "estimated target time")):
+        round_trip = bool(t["wall_is_round_trip"].any()) if len(t) else False
+        for x, title in ((ax, "QEMU host time" + (" (step round trip)" if round_trip else "")), (bx, "estimated target time")):
             x.set_yscale("log")
             x.minorticks_off()
             x.set_xlabel("horizon N")
             x.set_ylabel("mean time per solve [ms]")
             x.set_title(f"{phase}: {title}")
             x.legend(fontsize=7)
-    fig.suptitle(f"Scaling with the horizon (our wall times: {host_cpu})", fontsize=10)
+    fig.suptitle(f"Scaling with the horizon (our host times: {host_cpu})", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
@@ -595,7 +620,10 @@ def _timing_model_html(out: Path, targets_meta: dict, rows: pd.DataFrame) -> str
     board calibration would change."""
     from rvd_pil.qemu import cycles
 
-    parts = ["<p>QEMU is not cycle-accurate: host wall time under emulation is not target time. Two plugins run "
+    parts = ["<p>QEMU is not cycle-accurate: host wall time under emulation is not target time. The flight software "
+             "therefore takes its deadlines (and reports its solve and step times) on target time: instructions read "
+             "from the counter &times; the CPI of the control delay / f<sub>clk</sub> (<code>--target-clock</code>). "
+             "Two plugins run "
              "in every user-mode run, between markers the flight software places around every solver call of a "
              "guidance step: the instruction counter (exact, written back into the guest's telemetry) and the "
              "block profiler (executions of every translation block, plus a cache model with the CPU's L1D/L1I/L2 "
@@ -888,9 +916,14 @@ def write(out: Path) -> Path:
     parts.append(_table_html(check_rows, table_id="checks-table") if not check_rows.empty
                  else "<p class='na'>No check runs in this campaign.</p>")
 
+    round_trip = bool(len(rows)) and bool(rows["flight_clock_target"].any())
+    host_what = ("the host's round trip of the same steps (nav out to cmd in, host time under qemu-user with the "
+                 "counting plugins attached, which slow emulation: the solve plus the filter, the allocation and the "
+                 "link; the flight's own clock was on target time)" if round_trip else
+                 "the emulated wall time of the same solves (host time under qemu-user with the counting plugins "
+                 "attached, which slow emulation)")
     parts.append("<h2 id='distributions'>Solve-time distributions</h2><p>Top row: our estimated target time; bottom "
-                 "row: the emulated wall time of the same solves (host time under qemu-user with the counting "
-                 "plugins attached, which slow emulation), with the dissertation's mean CVXGEN QEMU wall time "
+                 f"row: {host_what}, with the dissertation's mean CVXGEN QEMU wall time "
                  "per horizon marked (dashed, in the colour of that horizon's curve). The red line is the "
                  "deadline. Log time axis; one curve per horizon N with its number of solves.</p>")
     for t, img in images:
@@ -899,22 +932,27 @@ def write(out: Path) -> Path:
 
     parts.append("<h2 id='dissertation'>Beside the dissertation</h2>")
     if not table.empty:
-        parts.append("<p>Like for like only. The dissertation (A. Fear, <i>Application of Model Predictive Control "
-                     "for the Autonomous Rendezvous and Docking of Small Satellites</i>, PhD dissertation, Georgia "
+        ours = ("our mean round trips of the same steps under qemu-user on this host "
+                f"({e(prov['host_cpu'])}): host time too, emulator-dependent, but of the whole step and its link, "
+                "an upper bound of the solve's (the flight's own clock was on target time)" if round_trip else
+                f"our mean wall times under qemu-user on this host ({e(prov['host_cpu'])}), the same kind of figure "
+                "(host time, emulator-dependent)")
+        parts.append("<p>Host time beside host time only. The dissertation (A. Fear, <i>Application of Model Predictive "
+                     "Control for the Autonomous Rendezvous and Docking of Small Satellites</i>, PhD dissertation, Georgia "
                      "Institute of Technology, 2023, ch. 6) reports the mean wall time of CVXGEN solves under QEMU "
-                     "full-system ARM emulation on its host; beside it stand our mean wall times under qemu-user on "
-                     f"this host ({e(prov['host_cpu'])}), the same kind of figure (host time, emulator-dependent). "
+                     f"full-system ARM emulation on its host; beside it stand {ours}. "
                      "Our estimated target times are a different quantity and stand in their own column and "
                      "plot row.</p>")
         cmp_rows = []
+        wall_name = "round trip" if round_trip else "wall"
         for _, r in table.iterrows():
             ref = r["dissertation_cvxgen_ms"]
             cmp_rows.append({"target": r["target"], "CPU (emulated)": cpu_labels.get(r["target"], r["target"]),
                              "phase": r["phase"], "N": int(r["N"]),
                              "dissertation QEMU wall, mean [ms]": ref,
-                             "ours QEMU wall, mean [ms]": r["wall_ms_mean"],
+                             f"ours QEMU {wall_name}, mean [ms]": r["wall_ms_mean"],
                              "ratio (dissertation / ours)": ref / r["wall_ms_mean"] if math.isfinite(ref) else math.nan,
-                             "ours QEMU wall, max [ms]": r["wall_ms_max"],
+                             f"ours QEMU {wall_name}, max [ms]": r["wall_ms_max"],
                              "ours estimated target, mean [ms]": r["target_ms_mean"]})
         parts.append(_table_html(pd.DataFrame(cmp_rows), table_id="dissertation-table"))
         parts.append(_img(out, "scaling.png", "solve time against the horizon"))
@@ -947,13 +985,20 @@ def write(out: Path) -> Path:
             "cycles max [low\u2013high]": [Cell(f"{_fmt(m)} [{_fmt(lo)}\u2013{_fmt(hi)}]", sort=m) for m, lo, hi in
                                            zip(table["cycles_max"], table["cycles_max_low"], table["cycles_max_high"])],
             "iterations mean": table["iterations_mean"], "iterations max": table["iterations_max"],
-            "QEMU wall mean [ms]": table["wall_ms_mean"], "QEMU wall p99 [ms]": table["wall_ms_p99"],
-            "QEMU wall max [ms]": table["wall_ms_max"],
-            "overruns on the emulated clock": table["overruns_flight_clock"]})
-        parts.append("<p>Instructions: counted by the plugin (exact). QEMU wall: the flight software's own clock "
-                     "under qemu-user (host time); its overruns count solves over the deadline on that clock, a "
-                     "statement about this host, not the target.</p>"
-                     + _table_html(counts, table_id="counts-table", caption="Instructions, cycles, iterations, emulated wall time"))
+            f"QEMU {wall_name} mean [ms]": table["wall_ms_mean"], f"QEMU {wall_name} p99 [ms]": table["wall_ms_p99"],
+            f"QEMU {wall_name} max [ms]": table["wall_ms_max"],
+            "flight clock mean [ms]": table["flight_clock_ms_mean"], "flight clock max [ms]": table["flight_clock_ms_max"],
+            "overruns on the flight clock": table["overruns_flight_clock"]})
+        flight_clock_text = (
+            "QEMU round trip: the host's time from nav out to cmd in (host time). Flight clock: the solve times "
+            "the flight software reports, on target time (instructions &times; the control delay's CPI / "
+            "f<sub>clk</sub>); its overruns count solves over the deadline on that clock, as the target would "
+            "have seen them (with that CPI), whatever this host's speed." if round_trip else
+            "QEMU wall and flight clock: the flight software's own clock under qemu-user (host time); its "
+            "overruns count solves over the deadline on that clock, a statement about this host, not the target.")
+        parts.append(f"<p>Instructions: counted by the plugin (exact). {flight_clock_text}</p>"
+                     + _table_html(counts, table_id="counts-table",
+                                   caption="Instructions, cycles, iterations, emulated host time, flight clock"))
 
     parts.append("<h2 id='timing-model'>Timing model</h2>" + _timing_model_html(out, targets_meta, rows))
     parts.append("<h2>Memory and size</h2>")

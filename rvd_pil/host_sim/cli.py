@@ -17,10 +17,11 @@ three runs give the same record digest.
 
 With --target (rvd_pil/qemu/targets.toml) the flight executable is cross-built for that target, run under
 QEMU user mode with the instruction-counting plugin and the block profiler, the control delay is
-the estimated target time (instructions x the CPU's CPI / its clock), and after the run the cycle
-model prices every solve. Every time in the summary says where it comes from: wall time on this
-host (native, or emulated under QEMU: host time, not target time), instructions counted by the
-plugin, or the estimated target time.
+the estimated target time (instructions x the CPU's CPI / its clock), the flight software takes
+its deadlines and step times on the same target time (--target-clock), and after the run the cycle
+model prices every solve. Every time in the summary says where it comes from: the flight clock
+(wall time on this host natively, target time under --target), instructions counted by the
+plugin, or the cycle model's estimated target time.
 """
 from __future__ import annotations
 
@@ -174,7 +175,10 @@ def _target_setup(args, run_dir: Path):
         model = cycles.CycleModel(t)
         profile = run_dir.with_name(run_dir.name + ".blocks")
         plugins.append(plugin.BlockProfiler(out=profile, cache=model.cache_geometry, library=prof_lib))
-    return t, exe, (lambda fargs: user.command(t, exe, fargs, plugin=plugins)), profile
+    # The flight's deadlines and step times on the target time the estimated control delay is priced
+    # in (ServerConfig.cpi = the registry CPI); options after `--` come later and win.
+    clock = user.target_clock_args(t.cpi.nominal, t.clock_hz)
+    return t, exe, (lambda fargs: user.command(t, exe, [*clock, *fargs], plugin=plugins)), profile
 
 
 def _flight_failure(run_dir: Path, summary, exit_code) -> str | None:
@@ -194,6 +198,17 @@ def _flight_failure(run_dir: Path, summary, exit_code) -> str | None:
     return f"flight software failed ({how}): {summary.end}; the end of {run_dir / 'flight_sw.log'}:\n{tail}"
 
 
+def flight_clock_label(hello, target=None) -> str:
+    """What the flight software's step and solve times were measured on (its hello's step_clock)."""
+    step_clock = getattr(hello, "step_clock", 0)
+    if step_clock == 1:
+        return "target time on the flight clock (instructions counted by the plugin x CPI / f_clk)"
+    if target is not None:
+        why = " (--target-clock asked for, no plugin answered)" if step_clock == 2 else ""
+        return f"emulated wall time (host clock under QEMU user mode for {target.name}: host time, not target time){why}"
+    return "wall time on this host (native)"
+
+
 def _times(run_dir: Path, summary, target, cycles_csv: Path | None) -> list[str]:
     """The per-phase solve times, each labelled with its source."""
     from rvd_pil.host_sim.record import load_run
@@ -201,8 +216,7 @@ def _times(run_dir: Path, summary, target, cycles_csv: Path | None) -> list[str]
     out = []
     t = summary.telemetry
     if t is not None:
-        clock = (f"emulated wall time (host clock under QEMU user mode for {target.name}: host time, not target time)"
-                 if target is not None else "wall time on this host (native)")
+        clock = flight_clock_label(summary.hello, target)
         out.append(f"solve times, {clock}:")
         for i, ph in enumerate(("rendezvous", "approach", "docking")):
             if t.steps[i]:
@@ -273,7 +287,7 @@ def _main(argv=None) -> int:
                        allow_vehicle_mismatch=args.allow_vehicle_mismatch)
     delay_note = None
     if target is not None:
-        cfg.cpi, cfg.clock_hz = target.cpi.nominal, target.clock_hz
+        cfg.cpi, cfg.clock_hz = target.cpi.nominal, target.clock_hz  # as the flight clock (_target_setup)
         cfg.hello_timeout_s = max(cfg.hello_timeout_s, 180.0)
         cfg.cmd_timeout_s = max(cfg.cmd_timeout_s, 120.0)  # the profiler slows emulation tenfold
         if delay == "estimated":

@@ -80,7 +80,7 @@ class Hello:
     compiler: str = ""  # compiler and version
     build: str = ""  # build type and flags summary
     solver_mode: int = 0  # 0 fixed_barrier (Wang-Boyd), 1 converged
-    reserved: int = 0  # 0
+    step_clock: int = 0  # clock of the deadline and the step and solve times: 0 host steady_clock, 1 target (QEMU plugin instructions x CPI / f_clk), 2 target asked for, no plugin answered: host steady_clock
     solver_max_iter: int = 0  # iteration cap
     solver_tol: float = 0.0  # relative tolerance (converged mode)
     horizon: tuple[int, ...] = field(default_factory=lambda: (0,) * 3)  # prediction horizon N per phase (rendezvous, approach, docking)
@@ -122,8 +122,8 @@ class Cmd:
     dv_cmd_lvlh_mps: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 3)  # delta-v the MPC asked for [m/s]
     dv_alloc_lvlh_mps: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 3)  # delta-v the pulses realise nominally [m/s]
     pulse_s: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 6)  # pulse widths of thrusters +x, -x, +y, -y, +z, -z [s]
-    solve_time_us: float = 0.0  # solver wall time on the flight computer's clock [us]
-    step_time_us: float = 0.0  # whole guidance step (QP build + solve + allocation) [us]
+    solve_time_us: float = 0.0  # solver time on the flight clock (hello step_clock) [us]
+    step_time_us: float = 0.0  # whole guidance step (filter, QP build, solve, allocation) on the flight clock [us]
     instructions: int = 0  # guest instructions in the solve (QEMU plugin), 0 when unknown
     iterations: int = 0  # solver iterations
     reserved: int = 0  # 0
@@ -144,7 +144,7 @@ class Telemetry:
     mean_solve_us: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 3)  # mean solve time per phase [us]
     max_solve_us: tuple[float, ...] = field(default_factory=lambda: (0.0,) * 3)  # max solve time per phase [us]
     max_step: tuple[int, ...] = field(default_factory=lambda: (0,) * 3)  # step k that hit the max, per phase
-    reserved: int = 0  # 0
+    step_clock: int = 0  # clock of the times above and the overruns (as hello's step_clock; 2 also when the plugin fell silent during the run)
     total_instructions: tuple[int, ...] = field(default_factory=lambda: (0,) * 3)  # sum of solve instructions per phase (0 when unknown)
     peak_heap_bytes: int = 0  # peak heap in use by the flight software (malloc statistics)
     max_rss_kb: int = 0  # peak resident set of the process (under qemu-user: of QEMU itself)
@@ -273,10 +273,10 @@ MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Nav, Cmd, Telemetry, Bye, Obst
 
 # Field layout per class: (name, kind, count) with kind 'str', 'f64' or 'int'.
 _LAYOUT = {
-    Hello: (('arch', 'str', 16), ('cpu_model', 'str', 32), ('compiler', 'str', 48), ('build', 'str', 48), ('solver_mode', 'int', 1), ('reserved', 'int', 1), ('solver_max_iter', 'int', 1), ('solver_tol', 'f64', 1), ('horizon', 'int', 3), ('reserved2', 'int', 1), ('period_s', 'f64', 3), ('max_pulse_s', 'f64', 3), ('deadline_fraction', 'f64', 1), ('pid', 'int', 1), ('session', 'int', 1),),
+    Hello: (('arch', 'str', 16), ('cpu_model', 'str', 32), ('compiler', 'str', 48), ('build', 'str', 48), ('solver_mode', 'int', 1), ('step_clock', 'int', 1), ('solver_max_iter', 'int', 1), ('solver_tol', 'f64', 1), ('horizon', 'int', 3), ('reserved2', 'int', 1), ('period_s', 'f64', 3), ('max_pulse_s', 'f64', 3), ('deadline_fraction', 'f64', 1), ('pid', 'int', 1), ('session', 'int', 1),),
     Nav: (('step', 'int', 1), ('flags', 'int', 1), ('t_s', 'f64', 1), ('position_lvlh_m', 'f64', 3), ('velocity_lvlh_mps', 'f64', 3), ('q_lvlh_body', 'f64', 4), ('omega_body_rad_s', 'f64', 3),),
     Cmd: (('step', 'int', 1), ('phase', 'int', 1), ('guidance_status', 'int', 1), ('solver_status', 'int', 1), ('overrun', 'int', 1), ('period_s', 'f64', 1), ('dv_cmd_lvlh_mps', 'f64', 3), ('dv_alloc_lvlh_mps', 'f64', 3), ('pulse_s', 'f64', 6), ('solve_time_us', 'f64', 1), ('step_time_us', 'f64', 1), ('instructions', 'int', 1), ('iterations', 'int', 1), ('reserved', 'int', 1), ('overruns', 'int', 1), ('primal_residual', 'f64', 1), ('dual_residual', 'f64', 1), ('objective', 'f64', 1),),
-    Telemetry: (('steps', 'int', 3), ('overruns', 'int', 3), ('mean_solve_us', 'f64', 3), ('max_solve_us', 'f64', 3), ('max_step', 'int', 3), ('reserved', 'int', 1), ('total_instructions', 'int', 3), ('peak_heap_bytes', 'int', 1), ('max_rss_kb', 'int', 1), ('nav_rejected', 'int', 1), ('nav_duplicates', 'int', 1), ('nav_stale', 'int', 1), ('nav_future', 'int', 1), ('nav_coalesced', 'int', 1), ('rx_oversized', 'int', 1), ('rx_untagged', 'int', 1), ('rx_wrong_run', 'int', 1), ('rx_bad_tag', 'int', 1), ('rx_replayed', 'int', 1), ('link_losses', 'int', 1), ('link_resyncs', 'int', 1), ('link_rx_rejected', 'int', 1), ('link_rx_unmatched', 'int', 1),),
+    Telemetry: (('steps', 'int', 3), ('overruns', 'int', 3), ('mean_solve_us', 'f64', 3), ('max_solve_us', 'f64', 3), ('max_step', 'int', 3), ('step_clock', 'int', 1), ('total_instructions', 'int', 3), ('peak_heap_bytes', 'int', 1), ('max_rss_kb', 'int', 1), ('nav_rejected', 'int', 1), ('nav_duplicates', 'int', 1), ('nav_stale', 'int', 1), ('nav_future', 'int', 1), ('nav_coalesced', 'int', 1), ('rx_oversized', 'int', 1), ('rx_untagged', 'int', 1), ('rx_wrong_run', 'int', 1), ('rx_bad_tag', 'int', 1), ('rx_replayed', 'int', 1), ('link_losses', 'int', 1), ('link_resyncs', 'int', 1), ('link_rx_rejected', 'int', 1), ('link_rx_unmatched', 'int', 1),),
     Bye: (('reason', 'int', 1), ('reserved', 'int', 3), ('last_step', 'int', 1), ('text', 'str', 64),),
     Obstacles: (('step', 'int', 1), ('count', 'int', 1), ('sensed', 'int', 1), ('t_s', 'f64', 1), ('id', 'int', 8), ('t_seen_s', 'f64', 8), ('position_lvlh_m', 'f64', 24), ('velocity_lvlh_mps', 'f64', 24), ('semi_axes_m', 'f64', 24), ('q_lvlh_body', 'f64', 32),),
     ObstacleStatus: (('step', 'int', 1), ('received', 'int', 1), ('held', 'int', 1), ('capacity', 'int', 1), ('reserved', 'int', 1), ('dropped_total', 'int', 1), ('rejected_total', 'int', 1), ('held_id', 'int', 8),),

@@ -160,8 +160,8 @@ def stop_process(proc: subprocess.Popen, grace_s: float = 5.0) -> int:
 
 
 
-HELLO_FIELDS = ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction", "period_s", "max_pulse_s",
-                "solver_mode", "solver_max_iter", "session")
+HELLO_FIELDS = ("arch", "cpu_model", "compiler", "build", "horizon", "deadline_fraction", "step_clock", "period_s",
+                "max_pulse_s", "solver_mode", "solver_max_iter", "session")
 
 
 def end_of_run_meta(s, cfg, flight_exit_code) -> dict:

@@ -17,8 +17,9 @@ meta.json names the process writing the record ("writer": pid, its start time, b
 A record still "running" whose writer is gone (killed, crashed, the machine rebooted) is marked
 "host died" by the next `load_run` (and meta.json rewritten so), with what is known about the end.
 
-Some columns measure wall time on a clock (`TIMING_COLUMNS`: solve and step times, the link's round
-trip); everything else in a run without wall-clock-dependent settings repeats bit for bit, which
+Some columns measure time on a clock (`TIMING_COLUMNS`: solve and step times on the flight clock,
+the host's wall time or, under QEMU with --target-clock, target time (meta flight_hello.step_clock);
+the link's round trip, host wall time); everything else in a run without wall-clock-dependent settings repeats bit for bit, which
 `record_digest` checks in one number.
 """
 
@@ -71,7 +72,7 @@ STEP_COLUMNS: tuple[str, ...] = tuple(
     + _state_cols("after")
 )
 EVENT_COLUMNS: tuple[str, ...] = ("wall_time_utc", "step", "t_s", "kind", "detail")
-#: Per-step columns (where present) that measure wall time on some clock, not the simulated run.
+#: Per-step columns (where present) that measure time on some clock (flight_hello.step_clock says which), not the simulated run.
 TIMING_COLUMNS: tuple[str, ...] = ("solve_time_us", "step_time_us", "round_trip_ms")
 _RESERVED_META = {"format", "status", "created_utc", "versions", "columns", "extra_columns", "closed_utc",
                   "steps_written", "writer"}

@@ -248,9 +248,12 @@ class ServerConfig:
         """The settings whose effect depends on how fast this host (or the emulator on it) runs,
         each with what it changes: named in the summary and the run record."""
         out = {}
-        if self.delay_model == "reported":
+        # The flight clock on target time (hello step_clock 1: instructions x CPI / f_clk) makes the
+        # flight's step times and deadlines independent of this host; otherwise they are its clock's.
+        target_clock = getattr(hello, "step_clock", 0) == 1
+        if self.delay_model == "reported" and not target_clock:
             out["delay_model"] = "reported: each command is applied after the flight computer's measured step time"
-        elif self.delay_model == "estimated":
+        elif self.delay_model == "estimated" and not target_clock:
             out["delay_model"] = ("estimated: instructions x CPI / f_clk, or the measured step time where no "
                                   "instruction count came")
         if not self.lockstep:
@@ -259,7 +262,7 @@ class ServerConfig:
             out["cmd_timeout_s"] = (f"{self.cmd_timeout_s:g} s per attempt, {self.nav_retries + 1} attempts: a "
                                     "slower flight computer is declared lost")
         out["hello_timeout_s"] = f"{self.hello_timeout_s:g} s for the flight software to connect"
-        if hello is not None:
+        if hello is not None and not target_clock:
             out["flight_deadline_fraction"] = (f"{hello.deadline_fraction:g} x Ts on the flight computer's clock: a "
                                                "slower one falls back to the shifted plan or zero thrust")
         return out

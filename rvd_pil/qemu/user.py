@@ -7,8 +7,10 @@
 
 Always the dynamic qemu-arm / qemu-aarch64 (TCG plugins do not load in the -static ones), always
 an explicit -cpu (QEMU's default `max` would accept instructions the real CPU lacks). The guest
-reaches host TCP services at 127.0.0.1 directly. Times measured inside the guest here are host
-wall time, not target time: use the plugin's instruction counts with the target's CPI model.
+reaches host TCP services at 127.0.0.1 directly. Times measured inside the guest on its clock are
+host wall time, not target time: the flight software takes its deadlines and step times on target
+time instead when given target_clock_args() and run with the instruction counter (InsnCounter),
+which answers its clock reads.
 """
 from __future__ import annotations
 
@@ -40,3 +42,10 @@ def run(target: Target, exe: Path | str, args: Sequence[str] = (), *, plugin=Non
     """Runs `exe` to completion and captures its output (text)."""
     return subprocess.run(command(target, exe, args, plugin=plugin), capture_output=True, text=True,
                           timeout=timeout_s, **kwargs)
+
+
+def target_clock_args(cpi: float, clock_hz: float) -> list[str]:
+    """The flight software's options for its flight clock on target time: instructions (read from
+    the InsnCounter plugin) x `cpi` / `clock_hz`. Pass the CPI the run's estimated control delay uses,
+    so that the flight's budget and the host's delay price an instruction alike."""
+    return ["--target-clock", f"{float(cpi)!r},{float(clock_hz)!r}"]

@@ -167,8 +167,9 @@ def run_metrics(run_dir: str | Path | None = None, *, meta=None, steps=None, eve
     m["rejected_messages"] = int(meta.get("rejected_messages") or 0)
     m["overruns"] = int(steps["overruns"].max()) if "overruns" in steps and steps["overruns"].notna().any() else 0
     m.update(safety(meta, events))
-    m["solve_wall_us_mean"] = float(solved["solve_time_us"].mean()) if len(solved) else math.nan
-    m["solve_wall_us_max"] = float(solved["solve_time_us"].max()) if len(solved) else math.nan
+    wall = len(solved) and (meta.get("flight_hello") or {}).get("step_clock") != 1  # not on target time
+    m["solve_wall_us_mean"] = float(solved["solve_time_us"].mean()) if wall else math.nan
+    m["solve_wall_us_max"] = float(solved["solve_time_us"].max()) if wall else math.nan
     return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in m.items()}
 
 
@@ -193,6 +194,8 @@ def solves(meta: dict, steps):
         "wall_us": rows["solve_time_us"], "step_wall_us": rows.get("step_time_us"),
         "instructions": rows["instructions"], "overrun": rows.get("overrun"),
     })
+    if (meta.get("flight_hello") or {}).get("step_clock") == 1:  # the flight clock was on target time, not wall time
+        out["wall_us"] = out["step_wall_us"] = np.nan
     cpi, clock = meta.get("cpi"), meta.get("clock_hz")
     for band in ("nominal", "low", "high"):
         out[f"target_us_{band}"] = (rows["instructions"] * cpi[band] / clock * 1e6) if cpi and clock else np.nan

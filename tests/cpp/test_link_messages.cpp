@@ -32,6 +32,7 @@ TEST_CASE("hello golden vector") {
   set_str(m.compiler, "gcc 12.2.0");
   set_str(m.build, "Release -O2 -static");
   m.solver_mode = 1;
+  m.step_clock = 1;
   m.solver_max_iter = 100;
   m.solver_tol = 1e-8;
   m.horizon = {30, 15, 12};
@@ -99,6 +100,7 @@ TEST_CASE("telemetry and bye golden vectors") {
   t.mean_solve_us = {45.5, 30.25, 12.0};
   t.max_solve_us = {90.0, 60.5, 20.75};
   t.max_step = {12, 70, 100};
+  t.step_clock = 1;
   t.total_instructions = {1000000, 2000000, 3000000};
   t.peak_heap_bytes = 524288;
   t.max_rss_kb = 4096;

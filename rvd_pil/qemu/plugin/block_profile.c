@@ -4,8 +4,9 @@
  * optionally runs a two-level cache model (L1D + L1I + unified L2) over the guest's accesses. The
  * cycle model (rvd_pil/qemu/cycles.py) prices each block once per executable and sums count x cost.
  *
- * It shares the marker ABI with insn_count.c (syscall RVD_MARKER_NR, op 1 = begin, 2 = end) but
- * never touches the guest's slot: run it beside insn_count, which answers the guest. Counting is
+ * It shares the marker ABI with insn_count.c (syscall RVD_MARKER_NR, op 1 = begin, 2 = end; op 3,
+ * the flight clock's read, is ignored here) but never touches the guest's slot: run it beside
+ * insn_count, which answers the guest (every flight run does: rvd-run --target, make pil). Counting is
  * the same as insn_count's inline mode (one inline add per executed block, at block entry), so the
  * instructions of a region, sum over blocks of count x block size, equal insn_count's figure.
  *

@@ -3,12 +3,18 @@
  * markers of rvd::SolveMarker (flight_sw/app/solve_marker.hpp) and hands each count back to the
  * guest.
  *
- * Marker ABI, shared with solve_marker.hpp:
- *   syscall(RVD_MARKER_NR, op, step, slot)     op: 1 = begin, 2 = end; slot: guest address of a u64
+ * Marker ABI, shared with solve_marker.hpp and the flight clock (flight_sw/solver/elapsed.hpp):
+ *   syscall(RVD_MARKER_NR, op, step, slot)     op: 1 = begin, 2 = end, 3 = read the counter;
+ *                                              slot: guest address of a u64
  * The syscall number is unused by Linux, so the guest kernel (or QEMU's syscall layer) answers
  * ENOSYS; this plugin sees it first. The guest writes SLOT_REQUEST into the slot before each call.
  *   begin: the plugin notes the vCPU's count and writes SLOT_ACK (so the guest knows it is counted).
  *   end:   the plugin writes the instructions executed on that vCPU since its begin.
+ *   read:  the plugin writes the vCPU's instruction count so far (the flight clock's ticks: under
+ *          emulation the flight times its steps in target time, instructions x CPI / f_clk, instead
+ *          of the host's clock). Independent of begin/end, not logged; a slot still holding
+ *          SLOT_REQUEST afterwards tells the guest that no plugin is listening.
+ * Only this plugin writes slots: block_profile.c runs beside it and stays read-only.
  * The plugin touches the slot only if it holds SLOT_REQUEST: that proves the address translation
  * (host = guest + guest_base, with guest_base = haddr - vaddr of any translated instruction).
  * Every count is also appended to the log file (argument log=PATH) as "step insns" lines.
@@ -40,6 +46,7 @@ QEMU_PLUGIN_EXPORT int qemu_plugin_version = QEMU_PLUGIN_VERSION;
 #define RVD_MARKER_NR 0x5256 /* "RV"; Linux leaves it unallocated on arm and aarch64 */
 #define RVD_MARKER_BEGIN 1
 #define RVD_MARKER_END 2
+#define RVD_MARKER_READ 3
 #define SLOT_REQUEST UINT64_C(0x525644534c4f543f) /* "RVDSLOT?" */
 #define SLOT_ACK UINT64_C(0x525644534c4f5421)     /* "RVDSLOT!" */
 #define MAX_VCPUS 256
@@ -59,7 +66,7 @@ static bool per_vcpu;
 static int64_t guest_base; /* host address - guest address; valid once have_guest_base */
 static bool have_guest_base;
 static unsigned n_vcpus;
-static uint64_t n_regions, n_slot_mismatch;
+static uint64_t n_regions, n_slot_mismatch, n_reads;
 static FILE *log_file;
 static pthread_mutex_t log_lock = PTHREAD_MUTEX_INITIALIZER;
 
@@ -145,6 +152,9 @@ static void on_syscall(qemu_plugin_id_t id, unsigned int vcpu_index, int64_t num
     v->begin_step = (uint32_t)step;
     v->in_region = true;
     if (!answer_slot(slot, SLOT_ACK)) n_slot_mismatch++;
+  } else if (op == RVD_MARKER_READ) {
+    __atomic_add_fetch(&n_reads, 1, __ATOMIC_RELAXED);
+    if (!answer_slot(slot, now)) n_slot_mismatch++;
   } else if (op == RVD_MARKER_END) {
     if (!v->in_region || v->begin_step != (uint32_t)step) {
       log_line("# end of step %" PRIu64 " on vcpu %u without its begin: ignored\n", step, vcpu_index);
@@ -176,8 +186,8 @@ static void report_at_exit(qemu_plugin_id_t id, void *userdata) {
     total = 0;
     for (int i = 0; i < MAX_VCPUS; i++) total += vcpus[i].insns;
   }
-  log_line("# exit: regions %" PRIu64 ", slot mismatches %" PRIu64 ", total insns %" PRIu64 "\n",
-           n_regions, n_slot_mismatch, total);
+  log_line("# exit: regions %" PRIu64 ", clock reads %" PRIu64 ", slot mismatches %" PRIu64
+           ", total insns %" PRIu64 "\n", n_regions, n_reads, n_slot_mismatch, total);
   if (n_slot_mismatch) {
     char msg[160];
     snprintf(msg, sizeof msg, "rvd insn_count: %" PRIu64 " marker slot(s) could not be answered\n",

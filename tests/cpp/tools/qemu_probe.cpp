@@ -11,7 +11,11 @@
 //   wild                 marker calls with a slot pointer into unmapped memory (plugin robustness)
 //   echo HOST PORT       TCP connect (HOST: name or address), send 64 bytes, expect them back
 //   elapsed NS           one marked region: the flight software's conversion of a steady_clock
-//                        duration of NS nanoseconds to microseconds (rvd::solver::to_us)
+//                        duration of NS nanoseconds to microseconds (rvd::solver::FlightClock::to_us)
+//   target-clock CPI HZ  the flight clock on target time (FlightClock::use_target); prints which
+//                        clock it got (rvd::solver::StepClock)
+//   clock SPIN           one marked region: a flight clock reading, the SPIN-iteration loop, another
+//                        reading; prints both readings, the elapsed microseconds and the count
 //   chrono NS            the same with std::chrono's own conversion (duration<double, micro>)
 //   sum KB               one marked region: reads KB kilobytes (at most 64) of a static table
 //                        that nothing outside the marked regions touches
@@ -179,12 +183,28 @@ int run_conversion(rvd::SolveMarker& marker, std::uint64_t ns, bool flight, std:
   volatile double us = 0.0;
   marker.begin(step);
   const std::chrono::steady_clock::duration d = std::chrono::nanoseconds(input);
-  us = flight ? rvd::solver::to_us(d) : std::chrono::duration<double, std::micro>(d).count();
+  us = flight ? rvd::solver::flight_clock().to_us(d.count()) : std::chrono::duration<double, std::micro>(d).count();
   const std::uint64_t insns = marker.end(step);
   std::printf("%s step=%u ns=%llu us=%.3f insns=%llu\n", flight ? "elapsed" : "chrono", step,
               static_cast<unsigned long long>(ns), static_cast<double>(us), static_cast<unsigned long long>(insns));
   // both conversions are exact up to the final division (ns < 2^53): the same double
   return us == std::chrono::duration<double, std::micro>(d).count() ? 0 : 1;
+}
+
+// Two flight clock readings around the loop, inside one marked region: with the target clock
+// their difference is the loop's instructions plus the reading's own, to the instruction.
+int run_clock(rvd::SolveMarker& marker, std::uint64_t iterations, std::uint32_t step) {
+  rvd::solver::FlightClock& clock = rvd::solver::flight_clock();
+  marker.begin(step);
+  const rvd::solver::TimePoint t0 = clock.now();
+  spin(iterations);
+  const rvd::solver::TimePoint t1 = clock.now();
+  const std::uint64_t insns = marker.end(step);
+  std::printf("clock step=%u spin=%llu source=%d t0=%lld t1=%lld us=%.17g insns=%llu\n", step,
+              static_cast<unsigned long long>(iterations), static_cast<int>(clock.source()),
+              static_cast<long long>(t0.ticks), static_cast<long long>(t1.ticks), clock.to_us(t1.ticks - t0.ticks),
+              static_cast<unsigned long long>(insns));
+  return t1.epoch == t0.epoch && t1.ticks > t0.ticks ? 0 : 1;
 }
 
 int run_sum(rvd::SolveMarker& marker, std::uint64_t kb, std::uint32_t step) {
@@ -209,7 +229,7 @@ int run_touch(std::uint64_t kb) {
 int usage() {
   std::fprintf(stderr,
                "usage: qemu_probe [markers STEPS SPIN] [llt N] [timing SPIN REPEAT] [threaded SPIN] [wild] "
-               "[echo HOST PORT] [elapsed NS] [chrono NS] [sum KB] [touch KB]...\n");
+               "[echo HOST PORT] [elapsed NS] [chrono NS] [target-clock CPI HZ] [clock SPIN] [sum KB] [touch KB]...\n");
   return 2;
 }
 
@@ -244,6 +264,13 @@ int main(int argc, char** argv) {
     } else if ((cmd == "elapsed" || cmd == "chrono") && i + 1 < argc && parse_u64(argv[i + 1], a) &&
                a < (1ULL << 53)) {
       status = run_conversion(marker, a, cmd == "elapsed", next_step++);
+      i += 2;
+    } else if (cmd == "target-clock" && i + 2 < argc) {
+      const double cpi = std::strtod(argv[i + 1], nullptr), hz = std::strtod(argv[i + 2], nullptr);
+      std::printf("target-clock source=%d\n", static_cast<int>(rvd::solver::flight_clock().use_target(cpi, hz)));
+      i += 3;
+    } else if (cmd == "clock" && i + 1 < argc && parse_u64(argv[i + 1], a)) {
+      status = run_clock(marker, a, next_step++);
       i += 2;
     } else if (cmd == "sum" && i + 1 < argc && parse_u64(argv[i + 1], a) && a <= 64) {
       status = run_sum(marker, a, next_step++);
