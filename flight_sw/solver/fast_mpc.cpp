@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "flight_sw/solver/active_set.hpp"
 #include "flight_sw/solver/elapsed.hpp"
 #include "flight_sw/solver/kkt.hpp"
 
@@ -24,6 +25,11 @@ FastMpcSolver::FastMpcSolver(const OcpQpDims& dims, const Settings& settings) : 
     lam_.push_back(Vector::Zero(dims_.nc[i]));
     sig_.push_back(Vector::Zero(dims_.soft_rows(i)));
   }
+  if (work_->inputs <= settings_.active_set_max_inputs) dense_ = std::make_unique<detail::ActiveSet>(dims_);
+}
+
+void FastMpcSolver::setup(const OcpQp& qp) {
+  if (dense_ && inputs_ok(qp, Vector::Zero(dims_.nx)) && !dense_->same_data(qp)) dense_->condense(qp);
 }
 
 FastMpcSolver::~FastMpcSolver() = default;
@@ -95,9 +101,9 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
         xN.noalias() += qp.B[N - 1].lazyProduct(Eigen::Map<const Vector>(w.u + w.uo[N - 1], w.nu[N - 1]));
       }
       shifted_ = false;
-      st = settings_.mode == Mode::Converged
-               ? solve_converged(qp, warm, settings_.max_iter, 0.0, settings_.warm_push)
-               : solve_barrier(qp, warm);
+      st = active_set_applies()               ? solve_active_set(qp)
+           : settings_.mode == Mode::Converged ? solve_converged(qp, warm, settings_.max_iter, 0.0, settings_.warm_push)
+                                               : solve_barrier(qp, warm);
     }
     K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
     double pres = detail::max_abs(w.rdyn, w.N * w.nx), dres = 0.0;
