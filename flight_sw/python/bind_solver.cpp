@@ -294,7 +294,10 @@ Soft rows (optional, all three or none): idxs[i] lists rows of stage i that may 
 s >= 0 at the cost zs[i][k] s + Zs[i][k] s^2 / 2 (penalties >= 0); result.s holds the violations.
 
 A, B, b are lists over i = 0..N-1; Q, q, R, r, C, D, d over i = 0..N (R_N, r_N, D_N may have zero
-columns). mode 'converged' is the primal-dual interior point to relative accuracy tol;
+columns). mode 'converged' is the dual active-set method on the condensed QP when the inputs
+are few (Settings::active_set_max_inputs, exact once the active set is found; soft rows with a
+quadratic penalty excepted), else the primal-dual interior point to relative accuracy tol;
+'interior_point' is the interior point always;
 'fixed_barrier' is Wang and Boyd's Fast MPC (log barrier weight `barrier`, infeasible-start Newton).
 max_iter defaults to 100 (converged) or 15 (fixed_barrier). Shape errors raise ValueError; NaN/Inf
 gives status 'invalid_input'.)doc");

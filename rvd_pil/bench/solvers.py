@@ -16,7 +16,11 @@ disagreements are counted in the table. QPs the reference finds infeasible are l
 
 Clocks (each solver's own, setup excluded; microseconds):
   flight_sw          steady_clock around FastMpcSolver::solve() in C++ (Info::solve_time_us); the
-                     workspace is allocated once before, as in flight; cold start (no warm start)
+                     workspace is allocated once before, as in flight; cold start (no warm start).
+                     The settings the guidance flies: docking and approach by the dual active-set
+                     method (A, B, Q, R condensed by setup(), once per phase in flight: its time is
+                     the setup column), rendezvous by the interior point
+  flight_sw-ipm      the same, every phase by the interior point
   proxsuite sparse/  results.info.solve_time (compute_timings=True): solve after init()
   proxsuite dense
   osqp               info.solve_time + info.polish_time (setup_time excluded)
@@ -61,6 +65,8 @@ AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |
 
 def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
     from rvd_pil import flight_sw
+    if mode == "converged" and qp.phase == "rendezvous":
+        mode = "interior_point"  # as the guidance flies it (PhaseParams of the rendezvous)
     key = ("flight_sw", mode)
     if key not in forms:
         solver = forms[key] = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode=mode, tol=1e-8,
