@@ -39,6 +39,7 @@ Guidance::Guidance(const GuidanceParams& params)
     recovery_qps_[k] = std::make_unique<PhaseQp>(p, params_, true);
     recovery_solvers_[k] = std::make_unique<solver::FastMpcSolver>(recovery_qps_[k]->dims(), params_.phase(p).solver);
     solvers_[k]->setup(qps_[k]->qp());  // the phase's dynamics and weights, condensed once
+    recovery_solvers_[k]->setup(recovery_qps_[k]->qp());
     longest = std::max(longest, qps_[k]->N());
   }
   plan_.assign(longest, Eigen::Vector3d::Zero());

@@ -336,13 +336,24 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
       const bool from_upper = a.state[enter] == 2;
       double* m = Mw + static_cast<size_t>(p) * n;
       const double h = condense_row(enter, p);
+      ++it;
+      // A soft row whose dual minimum along its own multiplier lies past the other bound
+      // (violation >= ub |m|^2) goes there at once: one change instead of entering and leaving W.
+      if (a.ub[enter] < inf) {
+        const double viol = from_upper ? w.dv[enter] - w.gz[enter] : w.gz[enter] - w.dv[enter];
+        if (viol >= a.ub[enter] * dotn(m, m)) {
+          a.state[enter] = from_upper ? 0 : 2;
+          shift_c(m, from_upper ? -a.ub[enter] : a.ub[enter]);
+          need_primal = false;  // the working set's multipliers follow the new gradient
+          continue;
+        }
+      }
       if (from_upper) shift_c(m, -a.ub[enter]);
       a.slot_row[p] = enter;
       a.e[p] = h + dotn(m, a.c.data());
       a.lam[p] = from_upper ? a.ub[enter] : 0.0;
       a.state[enter] = 1;
       need_primal = false;
-      ++it;
       // Append to the Gram factor, or move along the null space while it would be singular.
       for (;;) {
         double* Kp = Kl + static_cast<size_t>(p) * cap;
