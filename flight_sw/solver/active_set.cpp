@@ -236,11 +236,18 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
     const double* col = Linv + static_cast<size_t>(j) * n;
     for (int r = j; r < n; ++r) a.c[r] += fj * col[r];
   }
-  // Per row: multiplier bound, and 1 / the violation that counts (w.inv_t as scratch).
+  // Per row: multiplier bound, 1 / the violation that counts (w.inv_t as scratch) and the weight of
+  // g'z - d in the search for the entering row (w.inv_s: + at lam = 0, - at lam = ub, 0 in W or never).
+  double* scan = w.inv_s;
+  auto set_state = [&](int k, signed char st) {
+    a.state[k] = st;
+    const bool never = w.act[k] == 0.0 || a.ub[k] == 0.0;
+    scan[k] = never || st == 1 ? 0.0 : st == 0 ? w.inv_t[k] : -w.inv_t[k];
+  };
   for (int k = 0; k < w.rows; ++k) {
-    a.state[k] = 0;
     a.ub[k] = w.soft[k] > 0.0 ? w.zs[k] : inf;
     w.inv_t[k] = 1.0 / (0.01 * settings_.tol * std::max(1.0, std::abs(w.dv[k])));
+    set_state(k, 0);
   }
   const int max_iter = settings_.active_set_max_iter;
   int p = 0;  // rows in W
@@ -320,8 +327,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
       int enter = -1;
       double worst = 1.0;
       for (int k = 0; k < w.rows; ++k) {
-        if (w.act[k] == 0.0 || a.state[k] == 1 || a.ub[k] == 0.0) continue;
-        const double viol = (a.state[k] == 0 ? w.gz[k] - w.dv[k] : w.dv[k] - w.gz[k]) * w.inv_t[k];
+        const double viol = (w.gz[k] - w.dv[k]) * scan[k];
         if (viol > worst) worst = viol, enter = k;
       }
       if (enter < 0) {
@@ -342,7 +348,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
       if (a.ub[enter] < inf) {
         const double viol = from_upper ? w.dv[enter] - w.gz[enter] : w.gz[enter] - w.dv[enter];
         if (viol >= a.ub[enter] * dotn(m, m)) {
-          a.state[enter] = from_upper ? 0 : 2;
+          set_state(enter, from_upper ? 0 : 2);
           shift_c(m, from_upper ? -a.ub[enter] : a.ub[enter]);
           need_primal = false;  // the working set's multipliers follow the new gradient
           continue;
@@ -352,7 +358,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
       a.slot_row[p] = enter;
       a.e[p] = h + dotn(m, a.c.data());
       a.lam[p] = from_upper ? a.ub[enter] : 0.0;
-      a.state[enter] = 1;
+      set_state(enter, 1);
       need_primal = false;
       // Append to the Gram factor, or move along the null space while it would be singular.
       for (;;) {
@@ -394,14 +400,14 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
         a.lam[p] += alpha * pk;
         if (block == p) {  // the entering row itself reached its other bound: it leaves at once
           const bool upper = !from_upper;
-          a.state[enter] = upper ? 2 : 0;
+          set_state(enter, upper ? 2 : 0);
           if (upper) shift_c(m, a.ub[enter]);
           need_primal = true;  // v unchanged, but c moved with the saturated row: recompute
           break;
         }
         const int row = a.slot_row[block];
         const bool upper = a.dir[block] > 0.0;
-        a.state[row] = upper ? 2 : 0;
+        set_state(row, upper ? 2 : 0);
         const double lam_p = a.lam[p];
         if (upper) shift_c(Mw + static_cast<size_t>(block) * n, a.ub[row]);
         remove_slot(block, true);
@@ -439,7 +445,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
     for (int s = 0; s < p; ++s) a.lam[s] += alpha * (a.lam_star[s] - a.lam[s]);
     const int row = a.slot_row[block];
     const bool upper = a.lam_star[block] > a.ub[row];
-    a.state[row] = upper ? 2 : 0;
+    set_state(row, upper ? 2 : 0);
     if (upper) shift_c(Mw + static_cast<size_t>(block) * n, a.ub[row]);
     remove_slot(block, false);
     ++it;
