@@ -64,7 +64,7 @@ def test_first_approach_solve_starts_from_the_lookahead(case, approach_n):
 
     # Fewer iterations than a cold solve of the entry QP by the same solver at the flight tolerance
     # (the loop without the look-ahead solves it cold: the same count).
-    cold_solve = fsw.solve_ocp_qp(**qp, tol=1e-8, max_iter=200)
+    cold_solve = fsw.solve_ocp_qp(**qp, tol=1e-8, max_iter=200, mode="interior_point")
     assert cold_solve.status == "solved"
     assert cmds_cold[k].iterations == cold_solve.iterations
     assert entry.iterations <= 0.6 * cold_solve.iterations, (entry.iterations, cold_solve.iterations)
