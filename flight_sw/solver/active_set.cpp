@@ -46,8 +46,12 @@ inline double dot(const double* x, const double* y, int n) {
   for (; k < n; ++k) s0 += x[k] * y[k];
   return (s0 + s1) + (s2 + s3);
 }
-void append(std::vector<double>& out, const Matrix& M) { out.insert(out.end(), M.data(), M.data() + M.size()); }
-bool equal(const double* a, const Matrix& M) { return std::memcmp(a, M.data(), sizeof(double) * M.size()) == 0; }
+void append(std::vector<double>& out, const Matrix& M) {
+  if (M.size() > 0) out.insert(out.end(), M.data(), M.data() + M.size());
+}
+bool equal(const double* a, const Matrix& M) {
+  return M.size() == 0 || std::memcmp(a, M.data(), sizeof(double) * M.size()) == 0;  // (an empty block has no data)
+}
 }  // namespace
 
 ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
