@@ -29,12 +29,19 @@ def fly_into_approach(p, case, approach_steps=3):
     raise AssertionError("never reached the approach phase")
 
 
-@pytest.mark.parametrize("case,approach_n", [(1, 15), (2, 15), (1, 30), (1, 5)])
-def test_first_approach_solve_starts_from_the_lookahead(case, approach_n):
+def interior_point_approach(approach_n):
+    # The look-ahead prepares the interior point's warm start; the default approach solver (the dual
+    # active-set method, flight_sw/solver/README.md) starts cold and skips it.
     p = fsw.GuidanceParams()
     p.approach.N = approach_n
-    cold = fsw.GuidanceParams()
-    cold.approach.N = approach_n
+    p.approach.solver_active_set_max_inputs = 0
+    return p
+
+
+@pytest.mark.parametrize("case,approach_n", [(1, 15), (2, 15), (1, 30), (1, 5)])
+def test_first_approach_solve_starts_from_the_lookahead(case, approach_n):
+    p = interior_point_approach(approach_n)
+    cold = interior_point_approach(approach_n)
     cold.approach_lookahead_steps = 0
     cmds, (k, qp) = fly_into_approach(p, case)
     cmds_cold, (k_cold, qp_cold) = fly_into_approach(cold, case)
@@ -57,7 +64,23 @@ def test_first_approach_solve_starts_from_the_lookahead(case, approach_n):
 
     # Fewer iterations than a cold solve of the entry QP by the same solver at the flight tolerance
     # (the loop without the look-ahead solves it cold: the same count).
-    cold_solve = fsw.solve_ocp_qp(**qp, tol=1e-8, max_iter=200)
+    cold_solve = fsw.solve_ocp_qp(**qp, tol=1e-8, max_iter=200, mode="interior_point")
     assert cold_solve.status == "solved"
     assert cmds_cold[k].iterations == cold_solve.iterations
     assert entry.iterations <= 0.6 * cold_solve.iterations, (entry.iterations, cold_solve.iterations)
+
+
+@pytest.mark.parametrize("approach_n", [5, 15])
+def test_no_lookahead_for_the_active_set(approach_n):
+    """With the approach on the dual active-set method (the default) no rendezvous step runs the
+    look-ahead, and the entry plan is still the entry QP's optimum (Clarabel)."""
+    p = fsw.GuidanceParams()
+    p.approach.N = approach_n
+    cmds, (k, qp) = fly_into_approach(p, 1)
+    assert all(c.lookahead_iterations == 0 for c in cmds)
+    entry = cmds[k]
+    assert entry.status == fsw.StepStatus.Ok and entry.solver_status == "solved" and entry.iterations == 0
+    status, u_ref, _ = solve_clarabel(qp)
+    assert status == "Solved"
+    u_max = p.approach.u_max_mps
+    np.testing.assert_allclose(entry.dv_cmd_mps, np.clip(u_ref[0][:3], -u_max, u_max), atol=1e-6)

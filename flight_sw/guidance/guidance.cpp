@@ -37,6 +37,8 @@ Guidance::Guidance(const GuidanceParams& params)
     solvers_[k] = std::make_unique<solver::FastMpcSolver>(qps_[k]->dims(), params_.phase(p).solver);
     recovery_qps_[k] = std::make_unique<PhaseQp>(p, params_, true);
     recovery_solvers_[k] = std::make_unique<solver::FastMpcSolver>(recovery_qps_[k]->dims(), params_.phase(p).solver);
+    solvers_[k]->setup(qps_[k]->qp());  // the phase's dynamics and weights, condensed once
+    recovery_solvers_[k]->setup(recovery_qps_[k]->qp());
     longest = std::max(longest, qps_[k]->N());
   }
   plan_.assign(longest, Eigen::Vector3d::Zero());
@@ -194,6 +196,7 @@ bool Guidance::solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Ve
 void Guidance::look_ahead(const solver::FastMpcSolver& rendezvous, const TargetState& target,
                           const EstimateQuality& quality, double budget_left_us, bool carried, solver::Info& info) {
   solver::FastMpcSolver& sol = *solvers_[index(Phase::Approach)];
+  if (sol.uses_active_set()) return;  // its solves start cold: nothing to prepare
   const int steps = std::min(params_.approach_lookahead_steps, qps_[index(Phase::Rendezvous)]->N());
   int entry = 0;
   TargetState later = target;

@@ -25,6 +25,9 @@ PhaseParams GuidanceParams::default_rendezvous() {
   p.lambda = 10.0;
   p.los_half_angle_deg = 15.0;
   p.u_max_mps = 0.1786;
+  // Its plans saturate most inputs (30+ active rows of 45 at N = 15): the dual active-set method
+  // needs 80-160 row changes there, the interior point is faster (solver README, "Method choice").
+  p.solver.active_set_max_inputs = 0;
   return p;
 }
 

@@ -203,7 +203,11 @@ void bind_guidance(py::module_& m) {
           [](PhaseParams& p, double v) { p.solver.barrier = v; })
       .def_property(
           "solver_warm_start", [](const PhaseParams& p) { return p.solver.warm_start; },
-          [](PhaseParams& p, bool v) { p.solver.warm_start = v; });
+          [](PhaseParams& p, bool v) { p.solver.warm_start = v; })
+      .def_property(
+          "solver_active_set_max_inputs", [](const PhaseParams& p) { return p.solver.active_set_max_inputs; },
+          [](PhaseParams& p, int v) { p.solver.active_set_max_inputs = v; },
+          "converged mode: the dual active-set method up to this many inputs (N nu), 0: the interior point");
 
   py::class_<EstimateQuality>(m, "EstimateQuality", "How well the guidance knows its state and thrusters.")
       .def(py::init<>())

@@ -22,20 +22,22 @@ struct SolveResult {
   py::list s;              // N+1 arrays of soft slacks (in the order of idxs)
   Matrix pi;               // N x nx dynamics multipliers
   std::string status;
-  int iterations = 0, back_solves = 0;
+  int iterations = 0, back_solves = 0, active_set_changes = 0;
   double objective = 0.0, primal_residual = 0.0, dual_residual = 0.0, solve_time_us = 0.0;
 };
 
 Mode parse_mode(const std::string& mode) {
   if (mode == "converged") return Mode::Converged;
   if (mode == "fixed_barrier") return Mode::FixedBarrier;
-  throw py::value_error("mode must be 'converged' or 'fixed_barrier', got '" + mode + "'");
+  if (mode == "interior_point") return Mode::Converged;  // converged, never the active-set method
+  throw py::value_error("mode must be 'converged', 'interior_point' or 'fixed_barrier', got '" + mode + "'");
 }
 
 Settings make_settings(const std::string& mode, double tol, std::optional<int> max_iter, double barrier,
                        bool warm_start, double time_limit_us) {
   Settings s;
   s.mode = parse_mode(mode);
+  if (mode == "interior_point") s.active_set_max_inputs = 0;
   s.max_iter = max_iter ? *max_iter : (s.mode == Mode::FixedBarrier ? fixed_barrier_settings().max_iter : 100);
   if (s.max_iter < 0) throw py::value_error("max_iter must be >= 0");
   if (!(tol > 0)) throw py::value_error("tol must be > 0");
@@ -157,6 +159,7 @@ SolveResult collect(const FastMpcSolver& solver) {
   res.status = to_string(info.status);
   res.iterations = info.iterations;
   res.back_solves = info.back_solves;
+  res.active_set_changes = info.active_set_changes;
   res.objective = info.objective;
   res.primal_residual = info.primal_residual;
   res.dual_residual = info.dual_residual;
@@ -209,6 +212,14 @@ class PyOcpSolver {
     }
     return collect(solver_);
   }
+  // Condense A, B, Q, R for the active-set method ahead of the solves (what solve() would do on its first call).
+  void setup(const py::sequence& A, const py::sequence& B, const py::sequence& b, const py::sequence& Q,
+             const py::sequence& q, const py::sequence& R, const py::sequence& r, const py::sequence& C,
+             const py::sequence& D, const py::sequence& d, const py::object& idxs, const py::object& zs,
+             const py::object& Zs) {
+    OcpQp qp = build_qp(A, B, b, Q, q, R, r, C, D, d, idxs, zs, Zs);
+    solver_.setup(qp);
+  }
   FastMpcSolver& solver() { return solver_; }
 
  private:
@@ -239,6 +250,8 @@ void bind_solver(py::module_& m) {
                     "'solved', 'max_iter', 'infeasible', 'invalid_input', 'numerical_error' or 'time_limit'")
       .def_readonly("iterations", &SolveResult::iterations, "Newton systems factored")
       .def_readonly("back_solves", &SolveResult::back_solves, "solves with those factors")
+      .def_readonly("active_set_changes", &SolveResult::active_set_changes,
+                    "rows that entered or left the active set (dual active-set method; 0: interior point only)")
       .def_readonly("objective", &SolveResult::objective, "objective at the returned iterate")
       .def_readonly("primal_residual", &SolveResult::primal_residual,
                     "inf-norm of the dynamics residual and of the inequality violation")
@@ -281,7 +294,10 @@ Soft rows (optional, all three or none): idxs[i] lists rows of stage i that may 
 s >= 0 at the cost zs[i][k] s + Zs[i][k] s^2 / 2 (penalties >= 0); result.s holds the violations.
 
 A, B, b are lists over i = 0..N-1; Q, q, R, r, C, D, d over i = 0..N (R_N, r_N, D_N may have zero
-columns). mode 'converged' is the primal-dual interior point to relative accuracy tol;
+columns). mode 'converged' is the dual active-set method on the condensed QP when the inputs
+are few (Settings::active_set_max_inputs, exact once the active set is found; soft rows with a
+quadratic penalty excepted), else the primal-dual interior point to relative accuracy tol;
+'interior_point' is the interior point always;
 'fixed_barrier' is Wang and Boyd's Fast MPC (log barrier weight `barrier`, infeasible-start Newton).
 max_iter defaults to 100 (converged) or 15 (fixed_barrier). Shape errors raise ValueError; NaN/Inf
 gives status 'invalid_input'.)doc");
@@ -298,6 +314,10 @@ gives status 'invalid_input'.)doc");
       .def("solve", &PyOcpSolver::solve, py::arg("A"), py::arg("B"), py::arg("b"), py::arg("Q"), py::arg("q"),
            py::arg("R"), py::arg("r"), py::arg("C"), py::arg("D"), py::arg("d"), py::arg("x0"), py::kw_only(),
            py::arg("idxs") = py::none(), py::arg("zs") = py::none(), py::arg("Zs") = py::none())
+      .def("setup", &PyOcpSolver::setup, py::arg("A"), py::arg("B"), py::arg("b"), py::arg("Q"), py::arg("q"),
+           py::arg("R"), py::arg("r"), py::arg("C"), py::arg("D"), py::arg("d"), py::kw_only(),
+           py::arg("idxs") = py::none(), py::arg("zs") = py::none(), py::arg("Zs") = py::none(),
+           "condense A, B, Q, R for the dual active-set method (otherwise the first solve does it)")
       .def("shift_warm_start", [](PyOcpSolver& s) { s.solver().shift_warm_start(); },
            "shift the last plan one stage: the warm start for the next control period")
       .def("reset_warm_start", [](PyOcpSolver& s) { s.solver().reset_warm_start(); })

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "flight_sw/solver/active_set.hpp"
 #include "flight_sw/solver/elapsed.hpp"
 #include "flight_sw/solver/kkt.hpp"
 
@@ -24,6 +25,11 @@ FastMpcSolver::FastMpcSolver(const OcpQpDims& dims, const Settings& settings) : 
     lam_.push_back(Vector::Zero(dims_.nc[i]));
     sig_.push_back(Vector::Zero(dims_.soft_rows(i)));
   }
+  if (work_->inputs <= settings_.active_set_max_inputs) dense_ = std::make_unique<detail::ActiveSet>(dims_);
+}
+
+void FastMpcSolver::setup(const OcpQp& qp) {
+  if (dense_ && inputs_ok(qp, Vector::Zero(dims_.nx)) && !dense_->same_data(qp)) dense_->condense(qp);
 }
 
 FastMpcSolver::~FastMpcSolver() = default;
@@ -45,7 +51,7 @@ bool FastMpcSolver::inputs_ok(const OcpQp& qp, const Vector& x0) const {
   if (qp.dims.N != N || qp.dims.nx != nx || qp.dims.nu != dims_.nu || qp.dims.nc != dims_.nc) return false;
   for (int i = 0; i <= N; ++i)
     if (qp.dims.soft_rows(i) != dims_.soft_rows(i)) return false;
-  if (x0.size() != nx || !x0.allFinite()) return false;
+  if (x0.size() != nx || !detail::all_finite(x0.data(), nx)) return false;
   const size_t n1 = static_cast<size_t>(N) + 1;
   if (qp.A.size() + 1 != n1 || qp.B.size() + 1 != n1 || qp.b.size() + 1 != n1 || qp.Q.size() != n1 ||
       qp.q.size() != n1 || qp.R.size() != n1 || qp.r.size() != n1 || qp.C.size() != n1 || qp.D.size() != n1 ||
@@ -53,7 +59,9 @@ bool FastMpcSolver::inputs_ok(const OcpQp& qp, const Vector& x0) const {
     return false;
   const bool any_soft = !dims_.ns.empty();
   if (any_soft && (qp.idxs.size() != n1 || qp.zs.size() != n1 || qp.Zs.size() != n1)) return false;
-  auto ok = [](const auto& m, long rows, long cols) { return m.rows() == rows && m.cols() == cols && m.allFinite(); };
+  auto ok = [](const auto& m, long rows, long cols) {
+    return m.rows() == rows && m.cols() == cols && detail::all_finite(m.data(), m.size());
+  };
   for (int i = 0; i <= N; ++i) {
     const int m = dims_.nu[i], k = dims_.nc[i], ns = dims_.soft_rows(i);
     if (i < N && !(ok(qp.A[i], nx, nx) && ok(qp.B[i], nx, m) && ok(qp.b[i], nx, 1))) return false;
@@ -95,9 +103,9 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
         xN.noalias() += qp.B[N - 1].lazyProduct(Eigen::Map<const Vector>(w.u + w.uo[N - 1], w.nu[N - 1]));
       }
       shifted_ = false;
-      st = settings_.mode == Mode::Converged
-               ? solve_converged(qp, warm, settings_.max_iter, 0.0, settings_.warm_push)
-               : solve_barrier(qp, warm);
+      st = active_set_applies()               ? solve_active_set(qp)
+           : settings_.mode == Mode::Converged ? solve_converged(qp, warm, settings_.max_iter, 0.0, settings_.warm_push)
+                                               : solve_barrier(qp, warm);
     }
     K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
     double pres = detail::max_abs(w.rdyn, w.N * w.nx), dres = 0.0;

@@ -40,6 +40,7 @@ namespace rvd::solver {
 namespace detail {
 struct Workspace;
 struct Kernels;
+struct ActiveSet;
 }  // namespace detail
 
 class FastMpcSolver {
@@ -50,6 +51,9 @@ class FastMpcSolver {
   FastMpcSolver& operator=(FastMpcSolver&&) noexcept;
 
   Status solve(const OcpQp& qp, const Vector& x0);  // no heap allocation; never throws; fills info()
+  // Condense the QP's A, B, Q, R for the dual active-set method ahead of the first solve (solve()
+  // does it itself, without allocating, when they differ from the last ones condensed).
+  void setup(const OcpQp& qp);
   const Info& info() const { return info_; }
   const std::vector<Vector>& x() const { return x_; }  // N+1 states of the last solve
   const std::vector<Vector>& u() const { return u_; }  // N+1 inputs (u[N] has dims.nu[N] entries, maybe 0)
@@ -62,6 +66,9 @@ class FastMpcSolver {
   const std::vector<Vector>& soft_slack() const { return sig_; }
   void shift_warm_start();  // shift the last solution one stage: the warm start for the next period
   void reset_warm_start();  // forget the previous solution: the next solve starts cold
+  // Converged-mode solves go to the dual active-set method (unless a soft row has a quadratic
+  // penalty): Settings::active_set_max_inputs. Its solves start cold (no use for a warm start).
+  bool uses_active_set() const;
   const OcpQpDims& dims() const { return dims_; }
   Settings& settings() { return settings_; }
   const Settings& settings() const { return settings_; }
@@ -74,6 +81,8 @@ class FastMpcSolver {
   Status solve_barrier(const OcpQp& qp, bool warm);
   bool infeasibility_certificate(const OcpQp& qp);  // true when the dual iterate proves infeasibility
   bool time_up() const;
+  bool active_set_applies() const;           // Settings::active_set_max_inputs, soft rows linear only
+  Status solve_active_set(const OcpQp& qp);  // active_set.cpp
 
  private:
   bool inputs_ok(const OcpQp& qp, const Vector& x0) const;
@@ -84,6 +93,7 @@ class FastMpcSolver {
   Info info_;
   std::unique_ptr<detail::Workspace> work_;
   const detail::Kernels* kernels_ = nullptr;
+  std::unique_ptr<detail::ActiveSet> dense_;  // the condensed QP, when the inputs are few enough
   std::vector<Vector> x_, u_, lam_, pi_, sig_;  // the solution, sized once
   TimePoint t_start_;  // on the flight clock (elapsed.hpp)
   bool has_warm_ = false;

@@ -10,6 +10,7 @@
 #pragma once
 
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include "flight_sw/solver/ocp_qp.hpp"
@@ -66,6 +67,18 @@ inline void gt_mul_add(const Workspace& w, int i, const double* v, double* out_u
 // G z over all stages (stage 0: x0 is data, so it enters gz too).
 inline void g_mul_all(const Workspace& w, const double* u, const double* x, double* out) {
   for (int i = 0; i <= w.N; ++i) g_mul(w, i, u + w.uo[i], x + i * w.nx, out);
+}
+
+// No NaN or Inf among v[0..n): the exponent bits, no branch per entry (Eigen's allFinite costs a
+// call and an early exit per block: most of the input check on small QPs).
+inline bool all_finite(const double* v, long n) {
+  unsigned long long bad = 0;
+  for (long k = 0; k < n; ++k) {
+    unsigned long long bits;
+    std::memcpy(&bits, v + k, sizeof bits);
+    bad |= (bits & 0x7ff0000000000000ULL) == 0x7ff0000000000000ULL;
+  }
+  return bad == 0;
 }
 
 inline double max_abs(const double* v, int n) {

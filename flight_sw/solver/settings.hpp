@@ -18,6 +18,16 @@ struct Settings {
   bool warm_start = true;     // start from the shifted previous solution when it is usable
   double time_limit_us = 0;   // wall-time budget of one solve(), checked between iterations (0 = none)
 
+  // --- Method choice (Converged mode). QPs with at most active_set_max_inputs inputs in all (N nu)
+  // and soft rows of linear penalty only (Zs = 0) are solved by the dual active-set method on the
+  // condensed QP (active_set.cpp): on few inputs its per-iteration cost (O(n^2)) is below the
+  // interior point's fixed per-stage overhead and it needs about one iteration per active row.
+  // Others, and a solve that reaches active_set_max_iter (entering plus leaving rows), go to the
+  // interior point (cold). 0: always the interior point. The workspace for it is allocated by the
+  // constructor only when the inputs are within the limit then.
+  int active_set_max_inputs = 96;
+  int active_set_max_iter = 200;
+
   // --- Newton systems
   // Smallest and largest regularisation of the input block tried when a factorisation fails (x100
   // per try). The residuals are always the true problem's, so it only makes a step inexact.

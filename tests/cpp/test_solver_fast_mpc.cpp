@@ -82,13 +82,20 @@ TEST_CASE("without inequalities the solution is the dense KKT system's") {
   K.topRightCorner(nz, ne) = K.bottomLeftCorner(ne, nz).transpose();
   const Vector z = K.fullPivLu().solve(rhs);
 
-  FastMpcSolver solver(dims);
+  Settings interior = Settings::converged();
+  interior.active_set_max_inputs = 0;
+  FastMpcSolver solver(dims, interior), active_set(dims);
   REQUIRE(solver.solve(qp, x0) == Status::Solved);
-  for (int i = 0; i <= N; ++i) {
-    CHECK((solver.u()[i] - z.segment(uo[i], dims.nu[i])).lpNorm<Eigen::Infinity>() < 1e-9 * (1 + z.lpNorm<Eigen::Infinity>()));
-    if (i > 0) CHECK((solver.x()[i] - z.segment(xo[i], nx)).lpNorm<Eigen::Infinity>() < 1e-9 * (1 + z.lpNorm<Eigen::Infinity>()));
+  REQUIRE(active_set.solve(qp, x0) == Status::Solved);
+  for (const FastMpcSolver* s : {&solver, &active_set}) {
+    for (int i = 0; i <= N; ++i) {
+      CHECK((s->u()[i] - z.segment(uo[i], dims.nu[i])).lpNorm<Eigen::Infinity>() < 1e-9 * (1 + z.lpNorm<Eigen::Infinity>()));
+      if (i > 0) CHECK((s->x()[i] - z.segment(xo[i], nx)).lpNorm<Eigen::Infinity>() < 1e-9 * (1 + z.lpNorm<Eigen::Infinity>()));
+    }
   }
   CHECK(solver.info().iterations == 1);  // no inequalities: one Newton step is exact
+  CHECK(active_set.info().iterations == 0);  // the unconstrained minimiser of the condensed QP, no row changed
+  CHECK(active_set.info().active_set_changes == 0);
 }
 
 TEST_CASE("random MPC-like QPs: the returned point satisfies the KKT conditions") {
@@ -259,6 +266,7 @@ TEST_CASE("warm start from the shifted plan takes fewer iterations over a closed
     s.mode = mode;
     s.barrier = 1e-3;
     s.max_iter = 60;
+    s.active_set_max_inputs = 0;  // the interior point's warm start (the active set starts cold)
     Settings cold_settings = s;
     cold_settings.warm_start = false;
     FastMpcSolver warm(qp.dims, s), cold(qp.dims, cold_settings);

@@ -39,14 +39,19 @@ TEST_CASE("solve() allocates nothing, in every mode and outcome") {
     bad.q[2](1) = std::nan("");
     OcpQp infeasible = qp;
     infeasible.d[N](0) = -1e3;  // the cone's first facet pushed far out of reach: no plan exists
+    OcpQp reweighted = qp;  // other weights: the active-set path condenses again inside solve()
+    reweighted.Q[1] *= 2.0;
+    reweighted.R[0] *= 0.5;
     Vector x0 = docking_x0();
 
     Vector x1 = x0;  // the next period's initial state: the plan's x1 (sized before counting)
     FastMpcSolver converged(qp.dims);
     FastMpcSolver barrier(qp.dims, fixed_barrier_settings(1e-3, 30));
-    Status s1 = Status::InvalidInput, s2 = s1, s3 = s1, s4 = s1, s5 = s1, s6 = s1;
+    Status s1 = Status::InvalidInput, s2 = s1, s3 = s1, s4 = s1, s5 = s1, s6 = s1, s7 = s1;
+    int ipm_iterations = -1;
     const long n = allocations_during([&] {
-      s1 = converged.solve(qp, x0);  // cold
+      s1 = converged.solve(qp, x0);  // cold (the active set: condenses A, B, Q, R first)
+      ipm_iterations = converged.info().iterations;
       x1 = converged.x()[1];
       converged.shift_warm_start();
       s2 = converged.solve(qp, x1);  // warm
@@ -59,8 +64,11 @@ TEST_CASE("solve() allocates nothing, in every mode and outcome") {
       converged.settings().time_limit_us = 1e-3;
       converged.solve(qp, x0);
       converged.settings().time_limit_us = 0;
+      s7 = converged.solve(reweighted, x0);
     });
     CHECK(n == 0);
+    CHECK(ipm_iterations == 0);  // the active-set path answered
+    CHECK(s7 == Status::Solved);
     CHECK(s1 == Status::Solved);
     CHECK(s2 == Status::Solved);
     CHECK(s3 == Status::Solved);

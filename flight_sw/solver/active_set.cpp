@@ -1,0 +1,484 @@
+// The dual active-set method on the condensed QP (Goldfarb & Idnani 1983; the recursive
+// factorisation updates of DAQP: Arnstrom, Bemporad & Axehill 2022), for QPs with few inputs.
+//
+// With H = L L' and v = L'u the condensed QP is min 1/2|v|^2 + c'v s.t. m_k'v <= h_k
+// (c = L^-1 f, m_k = L^-1 gbar_k). Its dual, min 1/2|c + M lam|^2 + h'lam over 0 <= lam <= ub,
+// is solved by a primal active-set method: the multipliers of the working set W are free, the
+// others sit at a bound. Its gradient is the primal slack s = h - M'v with v = -(c + M lam), so a
+// row with lam = 0 and s < 0 (violated) or lam = ub and s > 0 enters W; a multiplier that leaves
+// [0, ub] on the way to the subproblem's minimiser is stopped at the bound and its row leaves W.
+// Hard rows have ub = inf. A soft row with linear penalty zs (and Zs = 0) has ub = zs: at lam = zs
+// it is violated by s = g'z - d >= 0 and adds zs g to the gradient, exactly the penalty zs s.
+// (Soft rows with Zs > 0 stay on the interior point.) The Gram matrix M_W'M_W keeps a Cholesky
+// factor, updated by one row per entering row and by Givens rotations per leaving row.
+// A row that enters linearly dependent on W leaves the Gram matrix singular: the multipliers then
+// move along the null-space direction p (M p = 0: the primal point stays) until one reaches a
+// bound; when none ever does (p >= 0 on hard rows only), y = p is a Farkas certificate (y >= 0,
+// G'y = 0, h'y = s_k < 0): the QP is infeasible.
+//
+// Cost per iteration: O(n^2) for an entering row (condensing it, L^-1, the Gram column), O(|W|^2)
+// for a leaving one, O(n^2 + N nx^2 + rows) for the primal point and its slacks.
+#include "flight_sw/solver/active_set.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "flight_sw/solver/fast_mpc.hpp"
+#include "flight_sw/solver/kkt.hpp"
+
+namespace rvd::solver {
+
+namespace detail {
+
+namespace {
+// Dot product with four partial sums (the compiler may not reassociate one chain of additions).
+inline double dot(const double* x, const double* y, int n) {
+  double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+  int k = 0;
+  for (; k + 4 <= n; k += 4) {
+    s0 += x[k] * y[k];
+    s1 += x[k + 1] * y[k + 1];
+    s2 += x[k + 2] * y[k + 2];
+    s3 += x[k + 3] * y[k + 3];
+  }
+  for (; k < n; ++k) s0 += x[k] * y[k];
+  return (s0 + s1) + (s2 + s3);
+}
+void append(std::vector<double>& out, const Matrix& M) {
+  if (M.size() > 0) out.insert(out.end(), M.data(), M.data() + M.size());
+}
+bool equal(const double* a, const Matrix& M) {
+  return M.size() == 0 || std::memcmp(a, M.data(), sizeof(double) * M.size()) == 0;  // (an empty block has no data)
+}
+}  // namespace
+
+ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
+  uo.assign(N + 2, 0);
+  for (int i = 0; i <= N; ++i) uo[i + 1] = uo[i] + nu[i];
+  n = uo[N + 1];
+  for (int i = 0; i <= N; ++i) rows += d.nc[i];
+  go.assign(N + 1, 0);
+  size_t blocks = 0;
+  for (int i = 0; i <= N; ++i) go[i] = static_cast<int>(blocks), blocks += static_cast<size_t>(N - i) * nx * nu[i];
+  gam.assign(blocks, 0.0);
+  size_t a = 0, b = 0, q = 0, r = 0;
+  for (int i = 0; i <= N; ++i) {
+    if (i < N) a += nx * nx, b += nx * nu[i];
+    q += nx * nx, r += nu[i] * nu[i];
+  }
+  A.reserve(a), B.reserve(b), Q.reserve(q), R.reserve(r);
+  L.assign(static_cast<size_t>(n) * n, 0.0);
+  Linv.assign(static_cast<size_t>(n) * n, 0.0);
+  Wx.assign(static_cast<size_t>(N + 1) * n * nx, 0.0);
+  f.assign(n, 0.0), c.assign(n, 0.0), g.assign(n, 0.0), v.assign(n, 0.0), tmp.assign(std::max(n + 1, nx), 0.0);
+  xf.assign(static_cast<size_t>(N + 1) * nx, 0.0), lamx.assign(static_cast<size_t>(N + 1) * nx, 0.0);
+  cap = n + 1;
+  Mw.assign(static_cast<size_t>(cap) * n, 0.0);
+  Kl.assign(static_cast<size_t>(cap) * cap, 0.0);
+  e.assign(cap, 0.0), lam.assign(cap, 0.0), lam_star.assign(cap, 0.0), dir.assign(cap, 0.0);
+  slot_row.assign(cap, -1);
+  state.assign(rows, 0);
+  ub.assign(rows, 0.0);
+}
+
+bool ActiveSet::same_data(const OcpQp& qp) const {
+  if (!condensed) return false;
+  size_t a = 0, b = 0, q = 0, r = 0;
+  for (int i = 0; i <= N; ++i) {
+    if (i < N) {
+      if (!equal(A.data() + a, qp.A[i]) || !equal(B.data() + b, qp.B[i])) return false;
+      a += qp.A[i].size(), b += qp.B[i].size();
+    }
+    if (!equal(Q.data() + q, qp.Q[i]) || !equal(R.data() + r, qp.R[i])) return false;
+    q += qp.Q[i].size(), r += qp.R[i].size();
+  }
+  return true;
+}
+
+bool ActiveSet::condense(const OcpQp& qp) {
+  condensed = false;
+  A.clear(), B.clear(), Q.clear(), R.clear();  // capacity reserved: no allocation
+  for (int i = 0; i <= N; ++i) {
+    if (i < N) append(A, qp.A[i]), append(B, qp.B[i]);
+    append(Q, qp.Q[i]), append(R, qp.R[i]);
+  }
+  // Gamma(j, i) = A_{j-1} ... A_{i+1} B_i.
+  for (int i = 0; i < N; ++i) {
+    const int m = nu[i];
+    double* blk = gam.data() + go[i];
+    for (int k = 0; k < nx * m; ++k) blk[k] = qp.B[i].data()[k];
+    for (int j = i + 1; j < N; ++j) {
+      const double* prev = blk + static_cast<size_t>(j - i - 1) * nx * m;
+      double* next = blk + static_cast<size_t>(j - i) * nx * m;
+      const Matrix& Aj = qp.A[j];
+      for (int cc = 0; cc < m; ++cc)
+        for (int r = 0; r < nx; ++r) {
+          double acc = 0.0;
+          for (int k = 0; k < nx; ++k) acc += Aj(r, k) * prev[cc * nx + k];
+          next[cc * nx + r] = acc;
+        }
+    }
+  }
+  auto G = [&](int j, int i, int r, int cc) { return gam[go[i] + static_cast<size_t>(j - i - 1) * nx * nu[i] + cc * nx + r]; };
+  // H = Rbar + sum_j Gamma_j' Q_j Gamma_j (lower triangle; row-major).
+  std::fill(L.begin(), L.end(), 0.0);
+  for (int i = 0; i <= N; ++i)
+    for (int a = 0; a < nu[i]; ++a)
+      for (int b = 0; b <= a; ++b) L[static_cast<size_t>(uo[i] + a) * n + uo[i] + b] += 0.5 * (qp.R[i](a, b) + qp.R[i](b, a));
+  for (int j = 1; j <= N; ++j) {
+    const Matrix& Qj = qp.Q[j];
+    for (int k = 0; k < j; ++k)      // column stage
+      for (int b = 0; b < nu[k]; ++b) {
+        for (int r = 0; r < nx; ++r) {  // tmp = Q_j Gamma(j, k) e_b
+          double acc = 0.0;
+          for (int s = 0; s < nx; ++s) acc += 0.5 * (Qj(r, s) + Qj(s, r)) * G(j, k, s, b);
+          tmp[r] = acc;
+        }
+        for (int i = k; i < j; ++i)  // row stage >= column stage
+          for (int a = 0; a < nu[i]; ++a) {
+            const int row = uo[i] + a, col = uo[k] + b;
+            if (col > row) continue;
+            double acc = 0.0;
+            for (int r = 0; r < nx; ++r) acc += G(j, i, r, a) * tmp[r];
+            L[static_cast<size_t>(row) * n + col] += acc;
+          }
+      }
+  }
+  // Cholesky in place (lower, row-major).
+  for (int j = 0; j < n; ++j) {
+    double* Lj = L.data() + static_cast<size_t>(j) * n;
+    double dd = Lj[j];
+    for (int k = 0; k < j; ++k) dd -= Lj[k] * Lj[k];
+    if (!(dd > 0.0)) return false;
+    Lj[j] = std::sqrt(dd);
+    const double inv = 1.0 / Lj[j];
+    for (int r = j + 1; r < n; ++r) {
+      double* Lr = L.data() + static_cast<size_t>(r) * n;
+      double acc = Lr[j];
+      for (int k = 0; k < j; ++k) acc -= Lr[k] * Lj[k];
+      Lr[j] = acc * inv;
+    }
+  }
+  // Linv column by column (L Linv e_j = e_j), then Wx_i column s = Linv Gamma_i' e_s.
+  std::fill(Linv.begin(), Linv.end(), 0.0);
+  for (int j = 0; j < n; ++j) {
+    double* col = Linv.data() + static_cast<size_t>(j) * n;
+    for (int r = j; r < n; ++r) {
+      const double* Lr = L.data() + static_cast<size_t>(r) * n;
+      double acc = r == j ? 1.0 : 0.0;
+      for (int k = j; k < r; ++k) acc -= Lr[k] * col[k];
+      col[r] = acc / Lr[r];
+    }
+  }
+  std::fill(Wx.begin(), Wx.end(), 0.0);
+  for (int i = 1; i <= N; ++i)
+    for (int s = 0; s < nx; ++s) {
+      double* out = Wx.data() + (static_cast<size_t>(i) * nx + s) * n;
+      for (int j = 0; j < i; ++j)
+        for (int cc = 0; cc < nu[j]; ++cc) {
+          const double gv = G(i, j, s, cc);  // d x_i,s / d u_j,cc
+          if (gv == 0.0) continue;
+          const int q = uo[j] + cc;
+          const double* col = Linv.data() + static_cast<size_t>(q) * n;
+          for (int r = q; r < n; ++r) out[r] += gv * col[r];
+        }
+    }
+  condensed = true;
+  return true;
+}
+
+}  // namespace detail
+
+using detail::ActiveSet;
+using detail::Workspace;
+
+bool FastMpcSolver::uses_active_set() const {
+  return dense_ && settings_.mode == Mode::Converged && dense_->n <= settings_.active_set_max_inputs;
+}
+
+bool FastMpcSolver::active_set_applies() const {
+  if (!uses_active_set()) return false;
+  const Workspace& w = *work_;
+  for (int k = 0; k < w.rows; ++k)
+    if (w.act[k] > 0.0 && w.soft[k] > 0.0 && w.Zs[k] != 0.0) return false;
+  return true;
+}
+
+Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
+  Workspace& w = *work_;
+  ActiveSet& a = *dense_;
+  const detail::Kernels& K = *kernels_;
+  if (!a.same_data(qp) && !a.condense(qp)) return solve_converged(qp, false, settings_.max_iter, 0.0, settings_.warm_push);
+  const int N = a.N, nx = a.nx, n = a.n, cap = a.cap;
+  double* Mw = a.Mw.data();
+  double* Kl = a.Kl.data();
+  constexpr double inf = std::numeric_limits<double>::infinity();
+
+  // Free response and the condensed gradient f (adjoint recursion of the cost at u = 0).
+  std::copy(w.x, w.x + nx, a.xf.data());
+  std::fill(w.ut, w.ut + w.inputs, 0.0);
+  K.rollout(w, qp, a.xf.data(), w.ut);
+  for (int i = N; i >= 0; --i) {
+    Eigen::Map<Vector> li(a.lamx.data() + i * nx, nx);
+    const Eigen::Map<const Vector> xi(a.xf.data() + i * nx, nx);
+    li = qp.q[i];
+    li.noalias() += qp.Q[i].lazyProduct(xi);
+    Eigen::Map<Vector> fi(a.f.data() + a.uo[i], a.nu[i]);
+    fi = qp.r[i];
+    if (i < N) {
+      const Eigen::Map<const Vector> next(a.lamx.data() + (i + 1) * nx, nx);
+      fi.noalias() += qp.B[i].transpose().lazyProduct(next);
+      li.noalias() += qp.A[i].transpose().lazyProduct(next);
+    }
+  }
+  const double* Linv = a.Linv.data();
+  std::fill(a.c.begin(), a.c.end(), 0.0);  // c = L^-1 f
+  for (int j = 0; j < n; ++j) {
+    const double fj = a.f[j];
+    const double* col = Linv + static_cast<size_t>(j) * n;
+    for (int r = j; r < n; ++r) a.c[r] += fj * col[r];
+  }
+  // Per row: multiplier bound, 1 / the violation that counts (w.inv_t as scratch) and the weight of
+  // g'z - d in the search for the entering row (w.inv_s: + at lam = 0, - at lam = ub, 0 in W or never).
+  double* scan = w.inv_s;
+  auto set_state = [&](int k, signed char st) {
+    a.state[k] = st;
+    const bool never = w.act[k] == 0.0 || a.ub[k] == 0.0;
+    scan[k] = never || st == 1 ? 0.0 : st == 0 ? w.inv_t[k] : -w.inv_t[k];
+  };
+  for (int k = 0; k < w.rows; ++k) {
+    a.ub[k] = w.soft[k] > 0.0 ? w.zs[k] : inf;
+    w.inv_t[k] = 1.0 / (0.01 * settings_.tol * std::max(1.0, std::abs(w.dv[k])));
+    set_state(k, 0);
+  }
+  const int max_iter = settings_.active_set_max_iter;
+  int p = 0;  // rows in W
+
+  auto dotn = [n](const double* x, const double* y) { return detail::dot(x, y, n); };
+  // c += delta m (a row reaching or leaving its upper bound): e_s = h_s + m_s'c follows.
+  auto shift_c = [&](const double* m, double delta) {
+    for (int k = 0; k < n; ++k) a.c[k] += delta * m[k];
+    for (int s = 0; s < p; ++s) a.e[s] += delta * dotn(Mw + static_cast<size_t>(s) * n, m);
+  };
+  // Row k condensed into column `col` of Mw as m = L^-1 gbar = sum of columns of Linv (inputs)
+  // and Wx_i (states); returns h = d - c'x_free of it.
+  auto condense_row = [&](int k, int col) {
+    int i = 0;
+    while (w.ro[i + 1] <= k) ++i;
+    double* m = Mw + static_cast<size_t>(col) * n;
+    std::fill(m, m + n, 0.0);
+    for (int t = w.ptr[k]; t < w.mid[k]; ++t) {
+      const int q = a.uo[i] + w.col[t];
+      const double val = w.val[t];
+      const double* lc = Linv + static_cast<size_t>(q) * n;
+      for (int r = q; r < n; ++r) m[r] += val * lc[r];
+    }
+    double h = w.dv[k];
+    for (int t = w.mid[k]; t < w.ptr[k + 1]; ++t) {
+      const int s = w.col[t];
+      const double val = w.val[t];
+      h -= val * a.xf[i * nx + s];
+      const double* wc = a.Wx.data() + (static_cast<size_t>(i) * nx + s) * n;
+      for (int r = 0; r < n; ++r) m[r] += val * wc[r];
+    }
+    return h;
+  };
+  // Remove slot j from W (its multiplier is at a bound already): shift the slots and the pending
+  // column behind it, restore the triangular Gram factor by Givens rotations.
+  auto remove_slot = [&](int j, bool pending) {
+    const int last = p + (pending ? 1 : 0);
+    std::memmove(Mw + static_cast<size_t>(j) * n, Mw + static_cast<size_t>(j + 1) * n, sizeof(double) * n * (last - j - 1));
+    for (int s = j; s + 1 < p; ++s) {
+      a.slot_row[s] = a.slot_row[s + 1], a.e[s] = a.e[s + 1], a.lam[s] = a.lam[s + 1];
+      std::memcpy(Kl + static_cast<size_t>(s) * cap, Kl + static_cast<size_t>(s + 1) * cap, sizeof(double) * (s + 2));
+    }
+    --p;
+    for (int r = j; r < p; ++r) {  // rows r..p-1 have a superdiagonal entry in column r + 1
+      double* Kr = Kl + static_cast<size_t>(r) * cap;
+      const double x = Kr[r], y = Kr[r + 1], rho = std::hypot(x, y), cs = x / rho, sn = y / rho;
+      for (int q = r; q < p; ++q) {
+        double* Kq = Kl + static_cast<size_t>(q) * cap;
+        const double u0 = Kq[r], u1 = Kq[r + 1];
+        Kq[r] = cs * u0 + sn * u1;
+        Kq[r + 1] = -sn * u0 + cs * u1;
+      }
+      Kr[r + 1] = 0.0;
+    }
+  };
+  // The primal point of the current multipliers: v = -(c + M lam), u = L^-T v, the states, G z.
+  auto primal = [&]() {
+    for (int k = 0; k < n; ++k) a.v[k] = -a.c[k];
+    for (int s = 0; s < p; ++s) {
+      const double* m = Mw + static_cast<size_t>(s) * n;
+      const double ls = a.lam[s];
+      for (int k = 0; k < n; ++k) a.v[k] -= ls * m[k];
+    }
+    for (int r = 0; r < n; ++r)  // u = Linv' v
+      w.u[r] = detail::dot(Linv + static_cast<size_t>(r) * n + r, a.v.data() + r, n - r);
+    K.rollout(w, qp, w.x, w.u);
+    detail::g_mul_all(w, w.u, w.x, w.gz);
+  };
+
+  Status st = Status::MaxIter;
+  int it = 0;
+  bool need_primal = true;
+  while (it < max_iter) {
+    if (need_primal) {
+      primal();
+      // The most violated row: lam = 0 and g'z > d, or a soft row at lam = zs with g'z < d.
+      int enter = -1;
+      double worst = 1.0;
+      for (int k = 0; k < w.rows; ++k) {
+        const double viol = (w.gz[k] - w.dv[k]) * scan[k];
+        if (viol > worst) worst = viol, enter = k;
+      }
+      if (enter < 0) {
+        st = Status::Solved;
+        break;
+      }
+      if (time_up()) {
+        st = Status::TimeLimit;
+        break;
+      }
+      // Row `enter` becomes pending in column p; its multiplier starts at its bound.
+      const bool from_upper = a.state[enter] == 2;
+      double* m = Mw + static_cast<size_t>(p) * n;
+      const double h = condense_row(enter, p);
+      ++it;
+      // A soft row whose dual minimum along its own multiplier lies past the other bound
+      // (violation >= ub |m|^2) goes there at once: one change instead of entering and leaving W.
+      if (a.ub[enter] < inf) {
+        const double viol = from_upper ? w.dv[enter] - w.gz[enter] : w.gz[enter] - w.dv[enter];
+        if (viol >= a.ub[enter] * dotn(m, m)) {
+          set_state(enter, from_upper ? 0 : 2);
+          shift_c(m, from_upper ? -a.ub[enter] : a.ub[enter]);
+          need_primal = false;  // the working set's multipliers follow the new gradient
+          continue;
+        }
+      }
+      if (from_upper) shift_c(m, -a.ub[enter]);
+      a.slot_row[p] = enter;
+      a.e[p] = h + dotn(m, a.c.data());
+      a.lam[p] = from_upper ? a.ub[enter] : 0.0;
+      set_state(enter, 1);
+      need_primal = false;
+      // Append to the Gram factor, or move along the null space while it would be singular.
+      for (;;) {
+        double* Kp = Kl + static_cast<size_t>(p) * cap;
+        double mm = dotn(m, m), ll = 0.0;
+        for (int s = 0; s < p; ++s) {
+          const double* Ks = Kl + static_cast<size_t>(s) * cap;
+          Kp[s] = (dotn(Mw + static_cast<size_t>(s) * n, m) - detail::dot(Ks, Kp, s)) / Ks[s];
+          ll += Kp[s] * Kp[s];
+        }
+        const double dd = mm - ll;
+        if (dd > 1e-10 * mm) {
+          Kp[p] = std::sqrt(dd);
+          ++p;
+          break;
+        }
+        // Singular: p_k = +-1, p_W = -Kl^-T l p_k keeps M p = 0.
+        const double pk = from_upper ? -1.0 : 1.0;
+        for (int s = p - 1; s >= 0; --s) {
+          double acc = -Kp[s] * pk;
+          for (int t = s + 1; t < p; ++t) acc -= Kl[static_cast<size_t>(t) * cap + s] * a.dir[t];
+          a.dir[s] = acc / Kl[static_cast<size_t>(s) * cap + s];
+        }
+        double alpha = from_upper ? a.lam[p] : (a.ub[enter] - a.lam[p]);
+        int block = p;
+        double dmax = 1.0;
+        for (int s = 0; s < p; ++s) dmax = std::max(dmax, std::abs(a.dir[s]));
+        for (int s = 0; s < p; ++s) {
+          if (std::abs(a.dir[s]) <= 1e-12 * dmax) a.dir[s] = 0.0;  // rounding, not a direction
+          const double ds = a.dir[s];
+          const double room = ds < 0.0 ? a.lam[s] / -ds : ds > 0.0 ? (a.ub[a.slot_row[s]] - a.lam[s]) / ds : inf;
+          if (room < alpha) alpha = room, block = s;
+        }
+        if (alpha == inf) {
+          st = Status::Infeasible;
+          break;
+        }
+        for (int s = 0; s < p; ++s) a.lam[s] += alpha * a.dir[s];
+        a.lam[p] += alpha * pk;
+        if (block == p) {  // the entering row itself reached its other bound: it leaves at once
+          const bool upper = !from_upper;
+          set_state(enter, upper ? 2 : 0);
+          if (upper) shift_c(m, a.ub[enter]);
+          need_primal = true;  // v unchanged, but c moved with the saturated row: recompute
+          break;
+        }
+        const int row = a.slot_row[block];
+        const bool upper = a.dir[block] > 0.0;
+        set_state(row, upper ? 2 : 0);
+        const double lam_p = a.lam[p];
+        if (upper) shift_c(Mw + static_cast<size_t>(block) * n, a.ub[row]);
+        remove_slot(block, true);
+        m = Mw + static_cast<size_t>(p) * n;
+        a.slot_row[p] = enter;
+        a.lam[p] = lam_p;
+        a.e[p] = h + dotn(m, a.c.data());
+        ++it;
+      }
+      if (st == Status::Infeasible) break;
+      continue;
+    }
+    // Minimiser of the dual on W: Gram lam* = -e.
+    for (int s = 0; s < p; ++s) {
+      const double* Ks = Kl + static_cast<size_t>(s) * cap;
+      a.tmp[s] = (-a.e[s] - detail::dot(Ks, a.tmp.data(), s)) / Ks[s];
+    }
+    for (int s = p - 1; s >= 0; --s) {
+      double acc = a.tmp[s];
+      for (int t = s + 1; t < p; ++t) acc -= Kl[static_cast<size_t>(t) * cap + s] * a.lam_star[t];
+      a.lam_star[s] = acc / Kl[static_cast<size_t>(s) * cap + s];
+    }
+    double alpha = 1.0;
+    int block = -1;
+    for (int s = 0; s < p; ++s) {
+      const double ds = a.lam_star[s] - a.lam[s], ub = a.ub[a.slot_row[s]];
+      if (a.lam_star[s] < 0.0 && ds < 0.0 && a.lam[s] / -ds < alpha) alpha = a.lam[s] / -ds, block = s;
+      if (a.lam_star[s] > ub && ds > 0.0 && (ub - a.lam[s]) / ds < alpha) alpha = (ub - a.lam[s]) / ds, block = s;
+    }
+    if (block < 0) {
+      for (int s = 0; s < p; ++s) a.lam[s] = a.lam_star[s];
+      need_primal = true;
+      continue;
+    }
+    for (int s = 0; s < p; ++s) a.lam[s] += alpha * (a.lam_star[s] - a.lam[s]);
+    const int row = a.slot_row[block];
+    const bool upper = a.lam_star[block] > a.ub[row];
+    set_state(row, upper ? 2 : 0);
+    if (upper) shift_c(Mw + static_cast<size_t>(block) * n, a.ub[row]);
+    remove_slot(block, false);
+    ++it;
+  }
+  info_.active_set_changes = it;
+  if (st == Status::MaxIter) {  // the cap: the interior point from a cold start (Settings::active_set_max_iter)
+    const Status ipm = solve_converged(qp, false, settings_.max_iter, 0.0, settings_.warm_push);
+    return ipm;
+  }
+  if (st != Status::Solved) return st;
+  // Multipliers per row, soft slacks and their duals, and the dynamics multipliers by the adjoint
+  // recursion pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i (the residuals' conventions).
+  for (int k = 0; k < w.rows; ++k) {
+    w.lam[k] = a.state[k] == 2 ? a.ub[k] : 0.0;
+    if (w.act[k] > 0.0 && w.soft[k] > 0.0) w.sig[k] = std::max(w.gz[k] - w.dv[k], 0.0);
+  }
+  for (int s = 0; s < p; ++s) w.lam[a.slot_row[s]] = a.lam[s];
+  for (int k = 0; k < w.rows; ++k) {
+    if (w.soft[k] > 0.0) w.mu[k] = w.zs[k] - w.lam[k];
+    w.t[k] = std::max(w.dv[k] - w.gz[k] + w.sig[k], 0.0);
+  }
+  for (int i = N; i >= 1; --i) {
+    Eigen::Map<Vector> pim(w.pi + (i - 1) * nx, nx);
+    pim = qp.q[i];
+    pim.noalias() += qp.Q[i].lazyProduct(Eigen::Map<const Vector>(w.x + i * nx, nx));
+    if (i < N) pim.noalias() += qp.A[i].transpose().lazyProduct(Eigen::Map<const Vector>(w.pi + i * nx, nx));
+    detail::gt_mul_add(w, i, w.lam, w.ut + w.uo[i], w.pi + (i - 1) * nx);
+  }
+  return Status::Solved;
+}
+
+}  // namespace rvd::solver

@@ -1,0 +1,48 @@
+// The condensed QP and the workspace of the dual active-set method (active_set.cpp). Internal to
+// the solver.
+//
+// Condensing eliminates the states: with the inputs u = (u_0, ..., u_N) stacked (n entries), the
+// states are x = x_free + Gamma u (x_free: the rollout of x0 with u = 0), the cost is
+// 1/2 u'Hu + f'u + const and a row g'[u_i; x_i] <= d of stage i reads gbar'u <= d - c'x_free,i.
+// H and its Cholesky factor depend on A, B, Q, R only (fixed per guidance phase): they are computed
+// once and kept, with a copy of the data they came from; a solve whose A, B, Q or R differ
+// re-condenses in place (plain loops, no allocation). f, x_free and the condensed rows are per
+// solve; a row is condensed only when it enters the active set.
+#pragma once
+
+#include <vector>
+
+#include "flight_sw/solver/ocp_qp.hpp"
+
+namespace rvd::solver::detail {
+
+struct ActiveSet {
+  int N = 0, nx = 0, n = 0, rows = 0;
+  std::vector<int> nu, uo;  // inputs of stage i and their offset in u
+  bool condensed = false;   // H, its factor and Gamma are those of the cached A, B, Q, R
+  std::vector<double> A, B, Q, R;  // the data condensed (flat, stage after stage), to detect a change
+  std::vector<int> go;        // Gamma: block (j, i), j > i, nx x nu_i column-major at go[i] + (j - i - 1) nx nu_i
+  std::vector<double> gam;
+  std::vector<double> L;      // Cholesky factor of H, n x n, row-major lower triangle
+  // Linv = L^-1 (column-major, n x n, lower) and per stage i >= 1 Wx_i = L^-1 Gamma_i' (column-major,
+  // n x nx, at i n nx; Gamma_i = dx_i/du): a row's m_k = L^-1 gbar_k is then a sum of nnz columns.
+  std::vector<double> Linv, Wx;
+  // Per solve.
+  std::vector<double> f, c, xf, lamx;  // condensed gradient, c = L^-1 f (+ saturated soft rows), x_free, adjoint
+  std::vector<double> g;               // a condensed row (scratch)
+  // Active set: the rows whose multiplier is free (W, p of them, in slots), their v-space rows
+  // m_k = L^-1 gbar_k (columns of Mw, n each), the Cholesky factor Kl of the Gram matrix Mw'Mw
+  // (row-major, cap x cap), per slot the row index, e_k = h_k + m_k'c and the multiplier.
+  int cap = 0;
+  std::vector<double> Mw, Kl, e, lam, lam_star, dir, v, tmp;
+  std::vector<int> slot_row;
+  std::vector<signed char> state;  // per row: 0 multiplier 0, 1 in W, 2 at its upper bound (soft row, zs)
+  std::vector<double> ub;          // per row: multiplier bound (zs on soft rows, inf on hard rows)
+
+  explicit ActiveSet(const OcpQpDims& dims);
+  bool same_data(const OcpQp& qp) const;
+  // H = Gamma'Qbar Gamma + Rbar and its Cholesky factor; false when H is not positive definite.
+  bool condense(const OcpQp& qp);
+};
+
+}  // namespace rvd::solver::detail

@@ -1,0 +1,147 @@
+"""The dual active-set path of the converged mode (flight_sw/solver/active_set.cpp: the condensed QP,
+Goldfarb-Idnani / DAQP style) against ProxSuite on docking and approach QPs: feasible ones, ones made
+infeasible through the dynamics and input limits by a reach row (an LP finds the reach), approach QPs
+whose soft cone rows are violated at the optimum (a linear penalty below the rows' multipliers), and
+closed-loop QPs of the guidance. Every solve is checked to have been answered by the active-set
+method (rows changed, no interior-point iteration), so these tests see that path and no other."""
+import numpy as np
+import pytest
+
+from rvd_pil import flight_sw
+from support.qp_forms import OcpQpData, approach_qp, docking_qp, from_dict, solve_proxsuite, with_reach_row
+
+GENERATORS = {"approach": approach_qp, "docking": docking_qp}
+
+
+def make(phase: str, N: int, seed: int) -> OcpQpData:
+    return GENERATORS[phase](N, np.random.default_rng(seed))
+
+
+def reference(qp: OcpQpData):
+    for eps in (1e-10, 1e-9, 1e-8):
+        ref = solve_proxsuite(qp, eps_abs=eps, max_iter=20000)
+        if ref.status in ("solved", "infeasible"):
+            return ref
+    return ref
+
+
+def by_active_set(res) -> bool:
+    # No interior-point iteration; rows changed (or none had to: the unconstrained optimum is feasible).
+    return res.iterations == 0 and (res.active_set_changes > 0 or res.status == "solved")
+
+
+def agrees(qp: OcpQpData, res, ref) -> None:
+    assert res.status == ref.status == "solved", (res.status, ref.status)
+    assert abs(res.objective - ref.objective) <= 1e-6 * max(1.0, abs(ref.objective)), (res.objective, ref.objective)
+    assert res.objective == pytest.approx(qp.objective(res.x, list(res.u)), rel=1e-12, abs=1e-9)
+    assert qp.violation(res.x, list(res.u)) <= 1e-7
+    assert res.primal_residual <= 1e-7
+    assert res.dual_residual <= 1e-7 * max(1.0, abs(ref.objective))  # multipliers and pi consistent
+
+
+@pytest.mark.parametrize("N", [5, 12, 30])
+@pytest.mark.parametrize("phase", list(GENERATORS))
+def test_matches_proxsuite(phase, N):
+    for seed in range(4):
+        qp = make(phase, N, 100 * N + seed)
+        res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), tol=1e-8)
+        assert by_active_set(res), (res.iterations, res.active_set_changes)
+        agrees(qp, res, reference(qp))
+
+
+@pytest.mark.parametrize("N", [5, 12, 30])
+@pytest.mark.parametrize("phase", list(GENERATORS))
+def test_infeasible_through_the_dynamics(phase, N):
+    """A row 1 unit beyond what any plan reaches: infeasible by ProxSuite and by the active set's
+    dual ray; 1 unit short of it: feasible, the same optimum as ProxSuite's."""
+    rng = np.random.default_rng(2000 + N)
+    base = make(phase, N, 3 * N + 7)
+    stage = int(rng.integers(1, N + 1))
+    direction = np.zeros(6)
+    direction[int(rng.integers(0, 3))] = rng.choice([-1.0, 1.0])
+    infeasible = with_reach_row(base, stage, direction, +1.0)
+    assert solve_proxsuite(infeasible, eps_infeasible=1e-4, max_iter=20000).status == "infeasible"
+    res = flight_sw.solve_ocp_qp(*infeasible.args(), **infeasible.kw())
+    assert res.status == "infeasible" and by_active_set(res)
+    feasible = with_reach_row(base, stage, direction, -1.0)
+    res = flight_sw.solve_ocp_qp(*feasible.args(), **feasible.kw())
+    assert by_active_set(res)
+    agrees(feasible, res, reference(feasible))
+
+
+@pytest.mark.parametrize("N", [5, 15, 30])
+def test_violated_soft_rows(N):
+    """Approach QPs whose set point lies 80 m outside the corridor, with a penalty below the pull
+    of the cost: soft rows end at their penalty (multiplier = zs, violation > 0), the exact l1
+    penalty; the slacks reported are the violations at the plan."""
+    saturated = 0
+    for seed in range(3):
+        qp = approach_qp(N, np.random.default_rng(50 + seed))
+        outside = np.array([80.0, -35.0, 0.0, 0.0, 0.0, 0.0])  # the cone's axis is -y, 20 deg half-angle
+        qp.q = [-Q @ outside for Q in qp.Q]
+        dist = -qp.x0[1]
+        qp.x0 = np.array([0.35 * dist, -dist, 0.0, 0.3, 0.0, 0.0])  # at the corridor's edge, drifting out
+        res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw())
+        assert by_active_set(res)
+        agrees(qp, res, reference(qp))
+        for i in range(N + 1):
+            rows = np.asarray(qp.idxs[i], int)
+            viol = np.maximum(qp.C[i][rows] @ res.x[i] + qp.D[i][rows] @ res.u[i] - qp.d[i][rows], 0.0)
+            np.testing.assert_allclose(res.s[i], viol, atol=1e-12)
+            lam = np.asarray(res.lam[i])[rows]
+            at_penalty = viol > 1e-6
+            saturated += int(at_penalty.sum())
+            np.testing.assert_allclose(lam[at_penalty], qp.zs[i][at_penalty], rtol=1e-9)
+            assert np.all(lam <= qp.zs[i] * (1 + 1e-9)) and np.all(lam >= 0.0)
+    assert saturated > 0  # the QPs do exercise rows at their penalty
+
+
+def test_quadratic_soft_penalty_stays_on_the_interior_point():
+    qp = approach_qp(5, np.random.default_rng(3))
+    qp = OcpQpData(*qp.args()[:-1], qp.x0, qp.phase, qp.Ts, qp.idxs, qp.zs, [np.full(len(z), 0.5) for z in qp.zs])
+    res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw())
+    assert res.iterations > 0 and res.active_set_changes == 0
+    agrees(qp, res, reference(qp))
+
+
+def test_changed_dynamics_and_weights_are_condensed_again():
+    """One solver, set up for one QP, then given QPs with other A, B, Q, R (another period, other
+    weights): each answer is the optimum of the QP given, not of the one condensed at setup."""
+    a = docking_qp(12, np.random.default_rng(1))
+    b = docking_qp(12, np.random.default_rng(2), ts_s=4.0)
+    b = OcpQpData(b.A, b.B, b.b, [3.0 * Q for Q in b.Q], b.q, [0.5 * R for R in b.R], *b.args()[6:-1], b.x0,
+                  b.phase, b.Ts)
+    solver = flight_sw.OcpSolver(a.nx, a.nu, a.nc, None, warm_start=False)
+    solver.setup(*a.args()[:-1])
+    for qp in (a, b, a, b):
+        res = solver.solve(*qp.args())
+        assert by_active_set(res)
+        agrees(qp, res, reference(qp))
+
+
+@pytest.fixture(scope="module")
+def closed_loop_qps():
+    """QPs the guidance solved in a closed loop of Case 3 (rotating target) at docking N = 5,
+    approach N = 5 (the shortest horizons: where the active set is meant to be fast)."""
+    params = flight_sw.GuidanceParams()
+    params.approach.N, params.docking.N = 5, 5
+    c = flight_sw.dissertation_case(3)
+    run = flight_sw.run_closed_loop(params, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"], record_qps=True)
+    assert run.docked, run.reason
+    out = {}
+    for rec in run.qps:
+        phase = int(rec["phase"])
+        if phase in (2, 3):
+            out.setdefault(phase, []).append(from_dict(rec["qp"]))
+    return out
+
+
+@pytest.mark.parametrize("phase", [2, 3])
+def test_closed_loop_qps(closed_loop_qps, phase):
+    qps = closed_loop_qps[phase]
+    rng = np.random.default_rng(phase)
+    chosen = [qps[i] for i in sorted(rng.choice(len(qps), size=min(25, len(qps)), replace=False))]
+    for qp in chosen:
+        res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), tol=1e-8)
+        assert by_active_set(res)
+        agrees(qp, res, reference(qp))
