@@ -12,15 +12,14 @@ RVD_QEMU_FETCH=1 to let the test fetch it.
 """
 from __future__ import annotations
 
-import os
 import re
-import shutil
 import subprocess
 
 import pytest
 
 from rvd_pil.qemu import build, plugin, targets, user
 from rvd_pil.qemu.plugin import InsnCounter
+from support.user_mode import counting_plugin_or_skip, cross_target_or_skip
 
 pytestmark = pytest.mark.qemu
 
@@ -30,17 +29,12 @@ STEPS = 4
 
 @pytest.fixture(scope="module")
 def plugin_lib():
-    lib = plugin.build(download=os.environ.get("RVD_QEMU_FETCH") == "1")
-    if lib is None:
-        pytest.skip("counting plugin not built: run `python -m rvd_pil.qemu prepare` (or set RVD_QEMU_FETCH=1)")
-    return lib
+    return counting_plugin_or_skip()
 
 
 @pytest.fixture(scope="module", params=["q7s", "rpi3"])
 def probe(request):
-    target = targets.load(request.param)
-    if not shutil.which(target.compiler):
-        pytest.skip(f"{target.compiler} missing: run tools/install-deps pil")
+    target = cross_target_or_skip(request.param)
     return target, build.cross_build(target, "qemu_probe").path
 
 

@@ -12,17 +12,16 @@ a 10-million-instruction step is 0.01 us), whatever the host's speed.
 from __future__ import annotations
 
 import math
-import os
 import re
-import shutil
 
 import pytest
 
 from rvd_pil.host_sim.pil import run_pil
 from rvd_pil.host_sim.record import load_run
 from rvd_pil.host_sim.server import ServerConfig
-from rvd_pil.qemu import build, plugin, targets, user
+from rvd_pil.qemu import build, plugin, user
 from rvd_pil.qemu.plugin import InsnCounter
+from support.user_mode import counting_plugin_or_skip, cross_target_or_skip
 
 pytestmark = pytest.mark.qemu
 
@@ -32,18 +31,12 @@ HOST_CLOCK, TARGET_CLOCK, UNANSWERED = 0, 1, 2  # hello/telemetry step_clock
 
 @pytest.fixture(scope="module")
 def plugin_lib():
-    lib = plugin.build(download=os.environ.get("RVD_QEMU_FETCH") == "1")
-    if lib is None:
-        pytest.skip("counting plugin not built: run `python -m rvd_pil.qemu prepare` (or set RVD_QEMU_FETCH=1)")
-    return lib
+    return counting_plugin_or_skip()
 
 
 @pytest.fixture(scope="module", params=["q7s", "rpi3"])
 def target(request):
-    t = targets.load(request.param)
-    if not shutil.which(t.compiler):
-        pytest.skip(f"{t.compiler} missing: run tools/install-deps pil")
-    return t
+    return cross_target_or_skip(request.param)
 
 
 def _clock_lines(stdout):

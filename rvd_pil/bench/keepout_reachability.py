@@ -17,23 +17,15 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.optimize import minimize
 
 from rvd_pil import flight_sw
 from rvd_pil.host_sim import scenario
-
-
-def cw_matrix(n: float) -> np.ndarray:
-    a = np.zeros((6, 6))
-    a[0:3, 3:6] = np.eye(3)
-    a[3, 0], a[3, 4], a[4, 3], a[5, 2] = 3 * n * n, 2 * n, -2 * n, -n * n
-    return a
+from rvd_pil.host_sim.cw import cw_stm
 
 
 def best_least_range(x0: np.ndarray, n: float, u_max: float, period_s: float, periods: int, guesses: int) -> float:
-    a = cw_matrix(n)
-    steps = [expm(a * t) for t in np.linspace(0.0, period_s, 16)[1:]]
+    steps = [cw_stm(n, t) for t in np.linspace(0.0, period_s, 16)[1:]]
 
     def ranges(u: np.ndarray) -> np.ndarray:
         x, out = x0.copy(), [np.linalg.norm(x0[:3])]

@@ -131,8 +131,7 @@ class PairPropagator:
 
     def derivative(self, y: np.ndarray, thrust_lvlh_mps2=None) -> np.ndarray:
         """dy/dt for the pair state y."""
-        m = self.model
-        if not m.j3_j4:
+        if not self.model.j3_j4:
             return self._derivative_scalar(y, thrust_lvlh_mps2)
         return self._derivative_vector(y, thrust_lvlh_mps2)
 
@@ -174,10 +173,10 @@ class PairPropagator:
         pcx, pcy, pcz = self._perturbation_scalar(xc, yc, zc, vxc, vyc, vzc, self.b_c)
         kt = -mu / rt**3
         kc = -mu / rc**3
-        # Central-term difference written directly (see _derivative_vector).
-        dax = kc * xc + (mu / rt**3) * xt + (pcx - ptx)
-        day = kc * yc + (mu / rt**3) * yt + (pcy - pty)
-        daz = kc * zc + (mu / rt**3) * zt + (pcz - ptz)
+        # Central-term difference written directly (see _derivative_vector); -kt is mu / rt^3 exactly.
+        dax = kc * xc + (-kt) * xt + (pcx - ptx)
+        day = kc * yc + (-kt) * yt + (pcy - pty)
+        daz = kc * zc + (-kt) * zt + (pcz - ptz)
         if thrust_lvlh_mps2 is not None:
             t = lvlh_basis(y[0:3], y[3:6]).T @ thrust_lvlh_mps2
             dax += t[0]
