@@ -169,19 +169,32 @@ def test_phase_figures_are_those_of_the_trajectory(runs, k):
     assert r.t_final_s == pytest.approx(sum(t.values()), abs=1e-9)
 
 
-# Totals against Tables 3.3-3.5 (ideal setting), within the tolerances the reproduction claims in
-# flight_sw/guidance/README.md ("Results against the dissertation", where each difference is explained):
-#  - Case 1: time 10 % (the acceptance of the reproduction); delta-v 15 %: our CW plant needs none of the
-#    delta-v the dissertation's J2 + drag truth costs, and its r1, r2, v_max and switching are unstated;
-#  - Case 2: delta-v 10 %, time 15 % (our rendezvous takes ~20 % longer, cause not isolated);
-#  - Case 3: 25 % and 15 %: the dissertation does not give its spin rate; ours (0.15 deg/s) is the
+# Totals against Tables 3.3-3.5 (ideal setting), flown with the dissertation's switching rule (Algorithm 1:
+# approach once in the cone on the keep-out boundary, read as within 2 m of r1), within the tolerances the
+# reproduction claims in flight_sw/guidance/README.md ("Results against the dissertation", where each
+# difference is explained):
+#  - Case 1: delta-v and time 10 % (the acceptance of the reproduction);
+#  - Case 2: delta-v 10 %, time 20 % (our rendezvous takes ~20 % longer, cause not isolated);
+#  - Case 3: delta-v 20 %, time 10 %: the dissertation does not give its spin rate; ours (0.15 deg/s) is the
 #    fastest the docking phase can follow inside its cone, so its approach and docking differ most.
-TOLERANCE = {1: (0.15, 0.10), 2: (0.10, 0.15), 3: (0.25, 0.15)}
+TOLERANCE = {1: (0.10, 0.10), 2: (0.10, 0.20), 3: (0.20, 0.10)}
+
+
+@pytest.fixture(scope="module")
+def runs_as_written():
+    p = fsw.GuidanceParams()
+    p.rendezvous_switch_margin_m = 2.0  # on r1's boundary to 1 % of r1 (0.5 m: Cases 2 and 3 never switch)
+    out = {}
+    for k in (1, 2, 3):
+        c = fsw.dissertation_case(k)
+        out[k] = (p, c, fsw.run_closed_loop(p, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"]))
+    return out
 
 
 @pytest.mark.parametrize("k", [1, 2, 3])
-def test_totals_against_the_dissertation(runs, k, capsys):
-    p, c, r = runs[k]
+def test_totals_against_the_dissertation(runs_as_written, k, capsys):
+    p, c, r = runs_as_written[k]
+    assert r.docked
     dv, t = _figures_from_the_trajectory(p, r)
     ref_dv, ref_t = sum(v[0] for v in DISSERTATION[k]), sum(v[1] for v in DISSERTATION[k])
     tol_dv, tol_t = TOLERANCE[k]
