@@ -130,10 +130,14 @@ def test_zonal_accelerations_are_the_gradient_of_the_zonal_potential(j3_j4):
 
 @pytest.mark.parametrize("j2,drag,rotation", [(True, True, True), (True, True, False), (False, True, True),
                                               (True, False, True)])
-def test_the_pair_derivative_on_floats_is_the_vector_formulas_bit_for_bit(j2, drag, rotation):
+def test_the_pair_derivative_on_floats_is_the_vector_formulas(j2, drag, rotation):
     """The integrator's inner loop evaluates the pair derivative on Python floats (numpy's per-call cost on
-    3-vectors was most of a run's CPU time); it must be the vector formulas' result exactly, so that every
-    truth trajectory stays what it was."""
+    3-vectors was most of a run's CPU time); it must be the vector formulas' result to the rounding of the
+    terms it adds up. Not bit for bit: numpy's dot product and array kernels differ by CPU (FMA, AVX-512)
+    and round an ulp differently from sums of products on floats (seen: 1.8e-15 m/s^2 in the relative
+    acceleration on an AVX-512 machine, equal on another). The bound is 4 ulp of the ~8 m/s^2 central
+    terms the relative acceleration is the difference of (7e-15 m/s^2), far below the pair's differential
+    drag and J2."""
     from rvd_pil.host_sim.dynamics import PairPropagator
 
     prop = PairPropagator(ForceModel(j2=j2, drag=drag, atmosphere_rotation=rotation), 0.012, 0.023)
@@ -144,7 +148,10 @@ def test_the_pair_derivative_on_floats_is_the_vector_formulas_bit_for_bit(j2, dr
         v_t = np.cross([0.0, 0.0, 1.0], r_t) + rng.normal(size=3) * 100.0
         v_t *= 7600.0 / np.linalg.norm(v_t)
         y = np.concatenate((r_t, v_t, rng.normal(size=3) * 2000.0, rng.normal(size=3) * 2.0))
+        central = k.MU_EARTH_M3_S2 / np.dot(r_t, r_t)
         for thrust in (None, rng.normal(size=3) * 0.03):
             fast = prop._derivative_scalar(y, thrust)
             reference = prop._derivative_vector(y, thrust)
-            assert np.array_equal(fast, reference), (fast - reference)
+            np.testing.assert_array_equal(fast[[0, 1, 2, 6, 7, 8]], reference[[0, 1, 2, 6, 7, 8]])  # velocities
+            np.testing.assert_allclose(fast, reference, rtol=4 * np.finfo(float).eps,
+                                       atol=4 * np.finfo(float).eps * central)
