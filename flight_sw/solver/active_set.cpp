@@ -98,9 +98,8 @@ ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
   stage_same.assign(N + 1, 0);
   flags.assign(3 * (N + 1), 0);
   for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &su_row, &su_idx, &sx_row, &sx_idx,
-                     &multi_row, &multi_stage})
+                     &multi_row, &multi_stage, &su_pos, &sx_pos})
     list->reserve(rows);
-  su_val.reserve(rows), sx_val.reserve(rows);
 }
 
 bool ActiveSet::same_rows(const OcpQp& qp, int i) const {
@@ -110,6 +109,32 @@ bool ActiveSet::same_rows(const OcpQp& qp, int i) const {
   return ns == 0 || (static_cast<int>(qp.idxs[i].size()) == ns &&
                      std::memcmp(idxc.data() + so[i], qp.idxs[i].data(), sizeof(int) * ns) == 0 &&
                      equal(zsc.data() + so[i], qp.zs[i], ns, 1) && equal(Zsc.data() + so[i], qp.Zs[i], ns, 1));
+}
+
+bool ActiveSet::same_pattern(Workspace& w, const OcpQp& qp, int i) {
+  const int ns = so[i + 1] - so[i];
+  if (ns > 0 && !(std::memcmp(idxc.data() + so[i], qp.idxs[i].data(), sizeof(int) * ns) == 0 &&
+                  equal(zsc.data() + so[i], qp.zs[i], ns, 1) && equal(Zsc.data() + so[i], qp.Zs[i], ns, 1)))
+    return false;
+  const Matrix &C = qp.C[i], &D = qp.D[i];
+  for (int j = 0, k = w.ro[i]; k < w.ro[i + 1]; ++j, ++k) {
+    int t = w.ptr[k];
+    for (int c = 0; c < nu[i]; ++c)
+      if (D(j, c) != 0.0) {
+        if (t == w.mid[k] || w.col[t] != c) return false;
+        w.val[t++] = D(j, c);
+      }
+    if (t != w.mid[k]) return false;
+    for (int c = 0; c < nx; ++c)
+      if (C(j, c) != 0.0) {
+        if (t == w.ptr[k + 1] || w.col[t] != c) return false;
+        w.val[t++] = C(j, c);
+      }
+    if (t != w.ptr[k + 1]) return false;
+  }
+  std::copy(C.data(), C.data() + C.size(), Cc.data() + co[i]);
+  std::copy(D.data(), D.data() + D.size(), Dc.data() + doff[i]);
+  return true;
 }
 
 void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
@@ -128,9 +153,8 @@ void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
     flags[3 * i + 2] = w.r_diag[i];
   }
   for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &su_row, &su_idx, &sx_row, &sx_idx,
-                     &multi_row, &multi_stage})
+                     &multi_row, &multi_stage, &su_pos, &sx_pos})
     list->clear();  // capacity reserved: no allocation
-  su_val.clear(), sx_val.clear();
   quadratic_soft = false;
   for (int k = 0; k < rows; ++k) ub[k] = w.soft[k] > 0.0 ? w.zs[k] : std::numeric_limits<double>::infinity();
   for (int i = 0; i <= N; ++i)
@@ -146,9 +170,9 @@ void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
       const int nu_k = w.mid[k] - w.ptr[k], nx_k = w.ptr[k + 1] - w.mid[k];
       if (w.soft[k] == 0.0 && nu_k == 1 && nx_k == 0) bound_rows.push_back(k), bound_col.push_back(w.uo[i] + w.col[w.ptr[k]]);
       if (nu_k == 1 && nx_k == 0) {
-        su_row.push_back(k), su_idx.push_back(w.uo[i] + w.col[w.ptr[k]]), su_val.push_back(w.val[w.ptr[k]]);
+        su_row.push_back(k), su_idx.push_back(w.uo[i] + w.col[w.ptr[k]]), su_pos.push_back(w.ptr[k]);
       } else if (nu_k == 0 && nx_k == 1) {
-        sx_row.push_back(k), sx_idx.push_back(i * nx + w.col[w.mid[k]]), sx_val.push_back(w.val[w.mid[k]]);
+        sx_row.push_back(k), sx_idx.push_back(i * nx + w.col[w.mid[k]]), sx_pos.push_back(w.mid[k]);
       } else {
         multi_row.push_back(k), multi_stage.push_back(i);
       }
@@ -285,8 +309,10 @@ bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
   Workspace& w = *work_;
   ActiveSet& a = *dense_;
   if (!a.dyn_same) a.condense(qp);  // on failure (H not positive definite) the solve goes to the interior point
+  // A stage with new C, D values but the same nonzeros (a turning target's cone rows) takes the
+  // values in place.
   bool same = a.rows_valid;
-  for (int i = 0; i <= a.N && same; ++i) same = a.stage_same[i];
+  for (int i = 0; i <= a.N && same; ++i) same = a.stage_same[i] || a.same_pattern(w, qp, i);
   if (!same) {
     const bool ok = detail::prepare_rows(w, qp, settings_.tol);
     a.keep_rows(w, qp);
@@ -453,8 +479,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
       if (viol > worst || (viol == worst && k < enter)) worst = viol, enter = k;
     };
     const size_t nsu = a.su_row.size(), nsx = a.sx_row.size();
-    for (size_t j = 0; j < nsu; ++j) consider(a.su_row[j], a.su_val[j] * w.u[a.su_idx[j]]);
-    for (size_t j = 0; j < nsx; ++j) consider(a.sx_row[j], a.sx_val[j] * w.x[a.sx_idx[j]]);
+    for (size_t j = 0; j < nsu; ++j) consider(a.su_row[j], w.val[a.su_pos[j]] * w.u[a.su_idx[j]]);
+    for (size_t j = 0; j < nsx; ++j) consider(a.sx_row[j], w.val[a.sx_pos[j]] * w.x[a.sx_idx[j]]);
     for (size_t j = 0; j < a.multi_row.size(); ++j) {
       const int k = a.multi_row[j], i = a.multi_stage[j];
       const double *u = w.u + w.uo[i], *x = w.x + i * nx;

@@ -55,15 +55,18 @@ struct ActiveSet {
   // constant rows (k, soft in the QP), single-input hard rows (input bounds), active rows.
   std::vector<int> const_rows, const_soft, bound_rows, bound_col, active_rows;
   bool quadratic_soft = false;  // an active soft row with Zs > 0: the interior point's QP
-  // The primal check's row lists: rows with one nonzero on an input (k, input index, value), on a
-  // state (k, state index in x, value), and the others (k): G z of a box row is one product.
-  std::vector<int> su_row, su_idx, sx_row, sx_idx, multi_row, multi_stage;
-  std::vector<double> su_val, sx_val;
+  // The primal check's row lists: rows with one nonzero on an input (k, input index in u, position
+  // of the value in w.val), on a state (k, index in x, position), and the others (k, stage): G z of
+  // a box row is one product.
+  std::vector<int> su_row, su_idx, su_pos, sx_row, sx_idx, sx_pos, multi_row, multi_stage;
 
   explicit ActiveSet(const OcpQpDims& dims);
   bool same_data(const OcpQp& qp) const;
   // Stage i's C, D and soft-row data equal the copy kept with the rows.
   bool same_rows(const OcpQp& qp, int i) const;
+  // Stage i's C, D have the nonzeros of the rows kept (and its soft rows are the same): their values
+  // replace the kept ones in the workspace and the copy. False (values partly written) otherwise.
+  bool same_pattern(Workspace& w, const OcpQp& qp, int i);
   // Keep the rows the workspace holds now (after prepare_rows) with the QP's data they came from.
   void keep_rows(const Workspace& w, const OcpQp& qp);
   // H = Gamma'Qbar Gamma + Rbar and its Cholesky factor; false when H is not positive definite.
