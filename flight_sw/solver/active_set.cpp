@@ -58,6 +58,70 @@ template <class M>
 bool equal(const double* a, const M& m, long rows, long cols) {
   return m.rows() == rows && m.cols() == cols && equal(a, m.data(), static_cast<size_t>(rows * cols));
 }
+// The stage products of the active set's passes (states of a plan, the adjoint recursions), with
+// fixed sizes for the guidance's shape (nx = 6, nu = 3 on stages 0..N-1, none on stage N:
+// Workspace::fixed_kernels) and dynamic ones otherwise; inlined into the loops over the stages.
+template <int NX, int NU>
+struct Stage {
+  template <int R, int C>
+  using CMap = Eigen::Map<const Eigen::Matrix<double, R, C>>;
+  using XMap = Eigen::Map<Eigen::Matrix<double, NX, 1>>;
+  // x_{i+1} = A x_i + B u_i + b_i for i < N (as the kernels' rollout: A (x + [0; u]) when B is
+  // A's tail, flags[3 i]); x_0 given.
+  static void rollout(const ActiveSet& a, const OcpQp& qp, double* x, const double* u, double* scratch) {
+    const int nx = a.nx;
+    for (int i = 0; i < a.N; ++i) {
+      const int m = a.nu[i];
+      XMap x1(x + (i + 1) * nx, nx);
+      x1 = CMap<NX, 1>(qp.b[i].data(), nx);
+      const CMap<NX, NX> A(qp.A[i].data(), nx, nx);
+      if (m > 0 && a.flags[3 * i]) {
+        XMap xs(scratch, nx);
+        xs = CMap<NX, 1>(x + i * nx, nx);
+        xs.tail(m) += CMap<NU, 1>(u + a.uo[i], m);
+        x1.noalias() += A.lazyProduct(xs);
+      } else {
+        x1.noalias() += A.lazyProduct(CMap<NX, 1>(x + i * nx, nx));
+        if (m > 0) x1.noalias() += CMap<NX, NU>(qp.B[i].data(), nx, m).lazyProduct(CMap<NU, 1>(u + a.uo[i], m));
+      }
+    }
+  }
+  // out = Q_i x_i + q_i (+ A_i' next when next).
+  static void adjoint_x(const OcpQp& qp, int i, int nx, const double* x, const double* next, double* out) {
+    XMap o(out, nx);
+    o = CMap<NX, 1>(qp.q[i].data(), nx);
+    o.noalias() += CMap<NX, NX>(qp.Q[i].data(), nx, nx).lazyProduct(CMap<NX, 1>(x, nx));
+    if (next) o.noalias() += CMap<NX, NX>(qp.A[i].data(), nx, nx).transpose().lazyProduct(CMap<NX, 1>(next, nx));
+  }
+  // out = r_i + B_i' next (i < N), r_i on stage N.
+  static void adjoint_u(const OcpQp& qp, int i, int nx, int m, const double* next, double* out) {
+    if (m == 0) return;
+    Eigen::Map<Eigen::Matrix<double, NU, 1>> o(out, m);
+    o = CMap<NU, 1>(qp.r[i].data(), m);
+    if (next) o.noalias() += CMap<NX, NU>(qp.B[i].data(), nx, m).transpose().lazyProduct(CMap<NX, 1>(next, nx));
+  }
+  // Free response x_free and the condensed gradient f (the cost's adjoint recursion at u = 0).
+  static void gradient(ActiveSet& a, const OcpQp& qp, const double* x0, double* zeros, double* scratch) {
+    std::copy(x0, x0 + a.nx, a.xf.data());
+    std::fill(zeros, zeros + a.n, 0.0);
+    rollout(a, qp, a.xf.data(), zeros, scratch);
+    for (int i = a.N; i >= 0; --i) {
+      const double* next = i < a.N ? a.lamx.data() + (i + 1) * a.nx : nullptr;
+      adjoint_u(qp, i, a.nx, a.nu[i], next, a.f.data() + a.uo[i]);
+      adjoint_x(qp, i, a.nx, a.xf.data() + i * a.nx, next, a.lamx.data() + i * a.nx);
+    }
+  }
+  // Dynamics multipliers pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i (the residuals' conventions).
+  static void multipliers(const ActiveSet& a, Workspace& w, const OcpQp& qp) {
+    for (int i = a.N; i >= 1; --i) {
+      adjoint_x(qp, i, a.nx, w.x + i * a.nx, i < a.N ? w.pi + i * a.nx : nullptr, w.pi + (i - 1) * a.nx);
+      detail::gt_mul_add(w, i, w.lam, w.ut + w.uo[i], w.pi + (i - 1) * a.nx);
+    }
+  }
+};
+using FixedStage = Stage<6, 3>;
+using AnyStage = Stage<Eigen::Dynamic, Eigen::Dynamic>;
+
 }  // namespace
 
 ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
@@ -97,9 +161,11 @@ ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
   idxc.assign(so[N + 1], 0);
   stage_same.assign(N + 1, 0);
   flags.assign(3 * (N + 1), 0);
-  for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &su_row, &su_idx, &sx_row, &sx_idx,
-                     &multi_row, &multi_stage, &su_pos, &sx_pos})
+  for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &one_row, &one_pos, &multi_row, &multi_end})
     list->reserve(rows);
+  one_src.reserve(rows);
+  multi_pos.reserve(static_cast<size_t>(rows) * (d.nx + *std::max_element(nu.begin(), nu.end())));
+  multi_src.reserve(multi_pos.capacity());
 }
 
 bool ActiveSet::same_rows(const OcpQp& qp, int i) const {
@@ -152,9 +218,10 @@ void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
     flags[3 * i + 1] = w.q_diag[i];
     flags[3 * i + 2] = w.r_diag[i];
   }
-  for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &su_row, &su_idx, &sx_row, &sx_idx,
-                     &multi_row, &multi_stage, &su_pos, &sx_pos})
+  for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &one_row, &one_pos, &multi_row, &multi_end,
+                     &multi_pos})
     list->clear();  // capacity reserved: no allocation
+  one_src.clear(), multi_src.clear();
   quadratic_soft = false;
   for (int k = 0; k < rows; ++k) ub[k] = w.soft[k] > 0.0 ? w.zs[k] : std::numeric_limits<double>::infinity();
   for (int i = 0; i <= N; ++i)
@@ -169,12 +236,13 @@ void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
       if (w.soft[k] > 0.0 && w.Zs[k] != 0.0) quadratic_soft = true;
       const int nu_k = w.mid[k] - w.ptr[k], nx_k = w.ptr[k + 1] - w.mid[k];
       if (w.soft[k] == 0.0 && nu_k == 1 && nx_k == 0) bound_rows.push_back(k), bound_col.push_back(w.uo[i] + w.col[w.ptr[k]]);
-      if (nu_k == 1 && nx_k == 0) {
-        su_row.push_back(k), su_idx.push_back(w.uo[i] + w.col[w.ptr[k]]), su_pos.push_back(w.ptr[k]);
-      } else if (nu_k == 0 && nx_k == 1) {
-        sx_row.push_back(k), sx_idx.push_back(i * nx + w.col[w.mid[k]]), sx_pos.push_back(w.mid[k]);
+      auto src = [&](int t) -> const double* { return t < w.mid[k] ? w.u + w.uo[i] + w.col[t] : w.x + i * nx + w.col[t]; };
+      if (nu_k + nx_k == 1) {
+        one_row.push_back(k), one_src.push_back(src(w.ptr[k])), one_pos.push_back(w.ptr[k]);
       } else {
-        multi_row.push_back(k), multi_stage.push_back(i);
+        multi_row.push_back(k);
+        for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) multi_src.push_back(src(t)), multi_pos.push_back(t);
+        multi_end.push_back(static_cast<int>(multi_pos.size()));
       }
     }
   rows_valid = true;
@@ -359,30 +427,17 @@ bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
 Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
   Workspace& w = *work_;
   ActiveSet& a = *dense_;
-  const detail::Kernels& K = *kernels_;
   if (!a.condensed) return solve_converged(qp, false, settings_.max_iter, 0.0, settings_.warm_push);
   const int N = a.N, nx = a.nx, n = a.n, cap = a.cap;
   double* Mw = a.Mw.data();
   double* Kl = a.Kl.data();
   constexpr double inf = std::numeric_limits<double>::infinity();
 
-  // Free response and the condensed gradient f (adjoint recursion of the cost at u = 0).
-  std::copy(w.x, w.x + nx, a.xf.data());
-  std::fill(w.ut, w.ut + w.inputs, 0.0);
-  K.rollout(w, qp, a.xf.data(), w.ut);
-  for (int i = N; i >= 0; --i) {
-    Eigen::Map<Vector> li(a.lamx.data() + i * nx, nx);
-    const Eigen::Map<const Vector> xi(a.xf.data() + i * nx, nx);
-    li = qp.q[i];
-    li.noalias() += qp.Q[i].lazyProduct(xi);
-    Eigen::Map<Vector> fi(a.f.data() + a.uo[i], a.nu[i]);
-    fi = qp.r[i];
-    if (i < N) {
-      const Eigen::Map<const Vector> next(a.lamx.data() + (i + 1) * nx, nx);
-      fi.noalias() += qp.B[i].transpose().lazyProduct(next);
-      li.noalias() += qp.A[i].transpose().lazyProduct(next);
-    }
-  }
+  const bool fixed = w.fixed_kernels;
+  if (fixed)
+    detail::FixedStage::gradient(a, qp, w.x, w.ut, w.tm);
+  else
+    detail::AnyStage::gradient(a, qp, w.x, w.ut, w.tm);
   const double* Linv = a.Linv.data();
   std::fill(a.c.begin(), a.c.end(), 0.0);  // c = L^-1 f
   for (int j = 0; j < n; ++j) {
@@ -466,28 +521,26 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
     }
     for (int r = 0; r < n; ++r)  // u = Linv' v
       w.u[r] = detail::dot(Linv + static_cast<size_t>(r) * n + r, a.v.data() + r, n - r);
-    K.rollout(w, qp, w.x, w.u);
+    if (fixed)
+      detail::FixedStage::rollout(a, qp, w.x, w.u, w.tm);
+    else
+      detail::AnyStage::rollout(a, qp, w.x, w.u, w.tm);
   };
-  // G z of the active rows (box rows: one product) and the most violated row: lam = 0 and g'z > d,
-  // or a soft row at lam = zs with g'z < d (the first of equals, as a scan in row order).
+  // G z of the active rows (a box row: one product), then the most violated row in row order (the
+  // first of equals): lam = 0 and g'z > d, or a soft row at lam = zs with g'z < d.
   auto most_violated = [&]() {
+    const size_t n1 = a.one_row.size(), nm = a.multi_row.size();
+    for (size_t j = 0; j < n1; ++j) w.gz[a.one_row[j]] = w.val[a.one_pos[j]] * *a.one_src[j];
+    for (size_t j = 0, e = 0; j < nm; ++j) {
+      double acc = 0.0;
+      for (const size_t end = a.multi_end[j]; e < end; ++e) acc += w.val[a.multi_pos[e]] * *a.multi_src[e];
+      w.gz[a.multi_row[j]] = acc;
+    }
     int enter = -1;
     double worst = 1.0;
-    auto consider = [&](int k, double gz) {
-      w.gz[k] = gz;
-      const double viol = (gz - w.dv[k]) * scan[k];
-      if (viol > worst || (viol == worst && k < enter)) worst = viol, enter = k;
-    };
-    const size_t nsu = a.su_row.size(), nsx = a.sx_row.size();
-    for (size_t j = 0; j < nsu; ++j) consider(a.su_row[j], w.val[a.su_pos[j]] * w.u[a.su_idx[j]]);
-    for (size_t j = 0; j < nsx; ++j) consider(a.sx_row[j], w.val[a.sx_pos[j]] * w.x[a.sx_idx[j]]);
-    for (size_t j = 0; j < a.multi_row.size(); ++j) {
-      const int k = a.multi_row[j], i = a.multi_stage[j];
-      const double *u = w.u + w.uo[i], *x = w.x + i * nx;
-      double acc = 0.0;
-      for (int t = w.ptr[k]; t < w.mid[k]; ++t) acc += w.val[t] * u[w.col[t]];
-      for (int t = w.mid[k]; t < w.ptr[k + 1]; ++t) acc += w.val[t] * x[w.col[t]];
-      consider(k, acc);
+    for (int k : a.active_rows) {
+      const double viol = (w.gz[k] - w.dv[k]) * scan[k];
+      if (viol > worst) worst = viol, enter = k;
     }
     return enter;
   };
@@ -639,13 +692,10 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
     if (w.soft[k] > 0.0) w.mu[k] = w.zs[k] - w.lam[k];
     w.t[k] = std::max(w.dv[k] - w.gz[k] + w.sig[k], 0.0);
   }
-  for (int i = N; i >= 1; --i) {
-    Eigen::Map<Vector> pim(w.pi + (i - 1) * nx, nx);
-    pim = qp.q[i];
-    pim.noalias() += qp.Q[i].lazyProduct(Eigen::Map<const Vector>(w.x + i * nx, nx));
-    if (i < N) pim.noalias() += qp.A[i].transpose().lazyProduct(Eigen::Map<const Vector>(w.pi + i * nx, nx));
-    detail::gt_mul_add(w, i, w.lam, w.ut + w.uo[i], w.pi + (i - 1) * nx);
-  }
+  if (fixed)
+    detail::FixedStage::multipliers(a, w, qp);
+  else
+    detail::AnyStage::multipliers(a, w, qp);
   return Status::Solved;
 }
 

@@ -55,10 +55,11 @@ struct ActiveSet {
   // constant rows (k, soft in the QP), single-input hard rows (input bounds), active rows.
   std::vector<int> const_rows, const_soft, bound_rows, bound_col, active_rows;
   bool quadratic_soft = false;  // an active soft row with Zs > 0: the interior point's QP
-  // The primal check's row lists: rows with one nonzero on an input (k, input index in u, position
-  // of the value in w.val), on a state (k, index in x, position), and the others (k, stage): G z of
-  // a box row is one product.
-  std::vector<int> su_row, su_idx, su_pos, sx_row, sx_idx, sx_pos, multi_row, multi_stage;
+  // G z of the active rows in the primal check: rows with one nonzero (row, the variable's address
+  // in the workspace, the value's position in w.val), and the others (row, end of its entries in
+  // multi_src / multi_pos). A box row costs one product.
+  std::vector<int> one_row, one_pos, multi_row, multi_end, multi_pos;
+  std::vector<const double*> one_src, multi_src;
 
   explicit ActiveSet(const OcpQpDims& dims);
   bool same_data(const OcpQp& qp) const;
