@@ -145,3 +145,28 @@ def test_closed_loop_qps(closed_loop_qps, phase):
         res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), tol=1e-8)
         assert by_active_set(res)
         agrees(qp, res, reference(qp))
+
+
+def test_one_solver_along_a_closed_loop(closed_loop_qps):
+    """One solver, as the guidance keeps it, fed the docking QPs of a turning target in flight order:
+    the cone rows' values change every period on the same nonzeros (taken in place), a QP with other
+    nonzeros prepares every row again, a NaN in a row is refused, and every answer is the optimum
+    of the QP given."""
+    qps = closed_loop_qps[3][:12]
+    first = qps[0]
+    solver = flight_sw.OcpSolver(first.nx, first.nu, first.nc, None, warm_start=False)
+    solver.setup(*first.args()[:-1])
+    assert any(not np.array_equal(a.C[1], b.C[1]) for a, b in zip(qps, qps[1:]))  # the rows do turn
+    reshaped = OcpQpData(*first.args()[:-1], first.x0, first.phase, first.Ts)
+    reshaped.C = [C.copy() for C in first.C]
+    reshaped.C[2][0, 5] += 1e-3  # a nonzero where the cone row had none
+    bad = OcpQpData(*first.args()[:-1], first.x0, first.phase, first.Ts)
+    bad.C = [C.copy() for C in first.C]
+    bad.C[2][0, 0] = np.nan
+    for qp in qps[:6] + [reshaped, bad] + qps[6:] + [qps[0]]:
+        res = solver.solve(*qp.args())
+        if qp is bad:
+            assert res.status == "invalid_input"
+            continue
+        assert by_active_set(res)
+        agrees(qp, res, reference(qp))

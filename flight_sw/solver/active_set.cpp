@@ -49,9 +49,79 @@ inline double dot(const double* x, const double* y, int n) {
 void append(std::vector<double>& out, const Matrix& M) {
   if (M.size() > 0) out.insert(out.end(), M.data(), M.data() + M.size());
 }
-bool equal(const double* a, const Matrix& M) {
-  return M.size() == 0 || std::memcmp(a, M.data(), sizeof(double) * M.size()) == 0;  // (an empty block has no data)
+bool equal(const double* a, const double* b, size_t n) {
+  return n == 0 || std::memcmp(a, b, sizeof(double) * n) == 0;  // (an empty block has no data)
 }
+// M has the shape (rows, cols) and the entries a (column-major): a shape check first, so that a
+// QP of the wrong shape is never read past the copy.
+template <class M>
+bool equal(const double* a, const M& m, long rows, long cols) {
+  return m.rows() == rows && m.cols() == cols && equal(a, m.data(), static_cast<size_t>(rows * cols));
+}
+// The stage products of the active set's passes (states of a plan, the adjoint recursions), with
+// fixed sizes for the guidance's shape (nx = 6, nu = 3 on stages 0..N-1, none on stage N:
+// Workspace::fixed_kernels) and dynamic ones otherwise; inlined into the loops over the stages.
+template <int NX, int NU>
+struct Stage {
+  template <int R, int C>
+  using CMap = Eigen::Map<const Eigen::Matrix<double, R, C>>;
+  using XMap = Eigen::Map<Eigen::Matrix<double, NX, 1>>;
+  // x_{i+1} = A x_i + B u_i + b_i for i < N (as the kernels' rollout: A (x + [0; u]) when B is
+  // A's tail, flags[3 i]); x_0 given.
+  static void rollout(const ActiveSet& a, const OcpQp& qp, double* x, const double* u, double* scratch) {
+    const int nx = a.nx;
+    for (int i = 0; i < a.N; ++i) {
+      const int m = a.nu[i];
+      XMap x1(x + (i + 1) * nx, nx);
+      x1 = CMap<NX, 1>(qp.b[i].data(), nx);
+      const CMap<NX, NX> A(qp.A[i].data(), nx, nx);
+      if (m > 0 && a.flags[3 * i]) {
+        XMap xs(scratch, nx);
+        xs = CMap<NX, 1>(x + i * nx, nx);
+        xs.tail(m) += CMap<NU, 1>(u + a.uo[i], m);
+        x1.noalias() += A.lazyProduct(xs);
+      } else {
+        x1.noalias() += A.lazyProduct(CMap<NX, 1>(x + i * nx, nx));
+        if (m > 0) x1.noalias() += CMap<NX, NU>(qp.B[i].data(), nx, m).lazyProduct(CMap<NU, 1>(u + a.uo[i], m));
+      }
+    }
+  }
+  // out = Q_i x_i + q_i (+ A_i' next when next).
+  static void adjoint_x(const OcpQp& qp, int i, int nx, const double* x, const double* next, double* out) {
+    XMap o(out, nx);
+    o = CMap<NX, 1>(qp.q[i].data(), nx);
+    o.noalias() += CMap<NX, NX>(qp.Q[i].data(), nx, nx).lazyProduct(CMap<NX, 1>(x, nx));
+    if (next) o.noalias() += CMap<NX, NX>(qp.A[i].data(), nx, nx).transpose().lazyProduct(CMap<NX, 1>(next, nx));
+  }
+  // out = r_i + B_i' next (i < N), r_i on stage N.
+  static void adjoint_u(const OcpQp& qp, int i, int nx, int m, const double* next, double* out) {
+    if (m == 0) return;
+    Eigen::Map<Eigen::Matrix<double, NU, 1>> o(out, m);
+    o = CMap<NU, 1>(qp.r[i].data(), m);
+    if (next) o.noalias() += CMap<NX, NU>(qp.B[i].data(), nx, m).transpose().lazyProduct(CMap<NX, 1>(next, nx));
+  }
+  // Free response x_free and the condensed gradient f (the cost's adjoint recursion at u = 0).
+  static void gradient(ActiveSet& a, const OcpQp& qp, const double* x0, double* zeros, double* scratch) {
+    std::copy(x0, x0 + a.nx, a.xf.data());
+    std::fill(zeros, zeros + a.n, 0.0);
+    rollout(a, qp, a.xf.data(), zeros, scratch);
+    for (int i = a.N; i >= 0; --i) {
+      const double* next = i < a.N ? a.lamx.data() + (i + 1) * a.nx : nullptr;
+      adjoint_u(qp, i, a.nx, a.nu[i], next, a.f.data() + a.uo[i]);
+      adjoint_x(qp, i, a.nx, a.xf.data() + i * a.nx, next, a.lamx.data() + i * a.nx);
+    }
+  }
+  // Dynamics multipliers pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i (the residuals' conventions).
+  static void multipliers(const ActiveSet& a, Workspace& w, const OcpQp& qp) {
+    for (int i = a.N; i >= 1; --i) {
+      adjoint_x(qp, i, a.nx, w.x + i * a.nx, i < a.N ? w.pi + i * a.nx : nullptr, w.pi + (i - 1) * a.nx);
+      detail::gt_mul_add(w, i, w.lam, w.ut + w.uo[i], w.pi + (i - 1) * a.nx);
+    }
+  }
+};
+using FixedStage = Stage<6, 3>;
+using AnyStage = Stage<Eigen::Dynamic, Eigen::Dynamic>;
+
 }  // namespace
 
 ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
@@ -81,6 +151,101 @@ ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
   slot_row.assign(cap, -1);
   state.assign(rows, 0);
   ub.assign(rows, 0.0);
+  co.assign(N + 2, 0), doff.assign(N + 2, 0), so.assign(N + 2, 0);
+  for (int i = 0; i <= N; ++i) {
+    co[i + 1] = co[i] + d.nc[i] * nx;
+    doff[i + 1] = doff[i] + d.nc[i] * nu[i];
+    so[i + 1] = so[i] + d.soft_rows(i);
+  }
+  Cc.assign(co[N + 1], 0.0), Dc.assign(doff[N + 1], 0.0), zsc.assign(so[N + 1], 0.0), Zsc.assign(so[N + 1], 0.0);
+  idxc.assign(so[N + 1], 0);
+  stage_same.assign(N + 1, 0);
+  flags.assign(3 * (N + 1), 0);
+  for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &one_row, &one_pos, &multi_row, &multi_end})
+    list->reserve(rows);
+  one_src.reserve(rows);
+  multi_pos.reserve(static_cast<size_t>(rows) * (d.nx + *std::max_element(nu.begin(), nu.end())));
+  multi_src.reserve(multi_pos.capacity());
+}
+
+bool ActiveSet::same_rows(const OcpQp& qp, int i) const {
+  const int ns = so[i + 1] - so[i], nc = (co[i + 1] - co[i]) / nx;
+  if (!rows_valid || !equal(Cc.data() + co[i], qp.C[i], nc, nx) || !equal(Dc.data() + doff[i], qp.D[i], nc, nu[i]))
+    return false;
+  return ns == 0 || (static_cast<int>(qp.idxs[i].size()) == ns &&
+                     std::memcmp(idxc.data() + so[i], qp.idxs[i].data(), sizeof(int) * ns) == 0 &&
+                     equal(zsc.data() + so[i], qp.zs[i], ns, 1) && equal(Zsc.data() + so[i], qp.Zs[i], ns, 1));
+}
+
+bool ActiveSet::same_pattern(Workspace& w, const OcpQp& qp, int i) {
+  const int ns = so[i + 1] - so[i];
+  if (ns > 0 && !(std::memcmp(idxc.data() + so[i], qp.idxs[i].data(), sizeof(int) * ns) == 0 &&
+                  equal(zsc.data() + so[i], qp.zs[i], ns, 1) && equal(Zsc.data() + so[i], qp.Zs[i], ns, 1)))
+    return false;
+  const Matrix &C = qp.C[i], &D = qp.D[i];
+  for (int j = 0, k = w.ro[i]; k < w.ro[i + 1]; ++j, ++k) {
+    int t = w.ptr[k];
+    for (int c = 0; c < nu[i]; ++c)
+      if (D(j, c) != 0.0) {
+        if (t == w.mid[k] || w.col[t] != c) return false;
+        w.val[t++] = D(j, c);
+      }
+    if (t != w.mid[k]) return false;
+    for (int c = 0; c < nx; ++c)
+      if (C(j, c) != 0.0) {
+        if (t == w.ptr[k + 1] || w.col[t] != c) return false;
+        w.val[t++] = C(j, c);
+      }
+    if (t != w.ptr[k + 1]) return false;
+  }
+  std::copy(C.data(), C.data() + C.size(), Cc.data() + co[i]);
+  std::copy(D.data(), D.data() + D.size(), Dc.data() + doff[i]);
+  return true;
+}
+
+void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
+  for (int i = 0; i <= N; ++i) {
+    std::copy(qp.C[i].data(), qp.C[i].data() + qp.C[i].size(), Cc.data() + co[i]);
+    std::copy(qp.D[i].data(), qp.D[i].data() + qp.D[i].size(), Dc.data() + doff[i]);
+    const int ns = so[i + 1] - so[i];
+    if (ns == 0) continue;
+    std::copy(qp.idxs[i].begin(), qp.idxs[i].end(), idxc.begin() + so[i]);
+    std::copy(qp.zs[i].data(), qp.zs[i].data() + ns, zsc.data() + so[i]);
+    std::copy(qp.Zs[i].data(), qp.Zs[i].data() + ns, Zsc.data() + so[i]);
+  }
+  for (int i = 0; i <= N; ++i) {
+    flags[3 * i] = i < N ? w.b_tail[i] : 0;
+    flags[3 * i + 1] = w.q_diag[i];
+    flags[3 * i + 2] = w.r_diag[i];
+  }
+  for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &one_row, &one_pos, &multi_row, &multi_end,
+                     &multi_pos})
+    list->clear();  // capacity reserved: no allocation
+  one_src.clear(), multi_src.clear();
+  quadratic_soft = false;
+  for (int k = 0; k < rows; ++k) ub[k] = w.soft[k] > 0.0 ? w.zs[k] : std::numeric_limits<double>::infinity();
+  for (int i = 0; i <= N; ++i)
+    for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
+      if (w.act[k] == 0.0) {  // prepare_rows cleared soft on constant rows: the QP's idxs say
+        bool soft = false;
+        for (int s = so[i]; s < so[i + 1]; ++s) soft = soft || idxc[s] == k - w.ro[i];
+        const_rows.push_back(k), const_soft.push_back(soft);
+        continue;
+      }
+      active_rows.push_back(k);
+      if (w.soft[k] > 0.0 && w.Zs[k] != 0.0) quadratic_soft = true;
+      const int nu_k = w.mid[k] - w.ptr[k], nx_k = w.ptr[k + 1] - w.mid[k];
+      if (w.soft[k] == 0.0 && nu_k == 1 && nx_k == 0) bound_rows.push_back(k), bound_col.push_back(w.uo[i] + w.col[w.ptr[k]]);
+      auto src = [&](int t) -> const double* { return t < w.mid[k] ? w.u + w.uo[i] + w.col[t] : w.x + i * nx + w.col[t]; };
+      if (nu_k + nx_k == 1) {
+        one_row.push_back(k), one_src.push_back(src(w.ptr[k])), one_pos.push_back(w.ptr[k]);
+      } else {
+        multi_row.push_back(k);
+        for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) multi_src.push_back(src(t)), multi_pos.push_back(t);
+        multi_end.push_back(static_cast<int>(multi_pos.size()));
+      }
+    }
+  rows_valid = true;
 }
 
 bool ActiveSet::same_data(const OcpQp& qp) const {
@@ -88,17 +253,18 @@ bool ActiveSet::same_data(const OcpQp& qp) const {
   size_t a = 0, b = 0, q = 0, r = 0;
   for (int i = 0; i <= N; ++i) {
     if (i < N) {
-      if (!equal(A.data() + a, qp.A[i]) || !equal(B.data() + b, qp.B[i])) return false;
-      a += qp.A[i].size(), b += qp.B[i].size();
+      if (!equal(A.data() + a, qp.A[i], nx, nx) || !equal(B.data() + b, qp.B[i], nx, nu[i])) return false;
+      a += nx * nx, b += nx * nu[i];
     }
-    if (!equal(Q.data() + q, qp.Q[i]) || !equal(R.data() + r, qp.R[i])) return false;
-    q += qp.Q[i].size(), r += qp.R[i].size();
+    if (!equal(Q.data() + q, qp.Q[i], nx, nx) || !equal(R.data() + r, qp.R[i], nu[i], nu[i])) return false;
+    q += nx * nx, r += nu[i] * nu[i];
   }
   return true;
 }
 
 bool ActiveSet::condense(const OcpQp& qp) {
   condensed = false;
+  rows_valid = false;  // the structure flags kept with the rows are those of the old A, B, Q, R
   A.clear(), B.clear(), Q.clear(), R.clear();  // capacity reserved: no allocation
   for (int i = 0; i <= N; ++i) {
     if (i < N) append(A, qp.A[i]), append(B, qp.B[i]);
@@ -199,40 +365,79 @@ bool FastMpcSolver::uses_active_set() const {
 }
 
 bool FastMpcSolver::active_set_applies() const {
-  if (!uses_active_set()) return false;
-  const Workspace& w = *work_;
-  for (int k = 0; k < w.rows; ++k)
-    if (w.act[k] > 0.0 && w.soft[k] > 0.0 && w.Zs[k] != 0.0) return false;
-  return true;
+  return uses_active_set() && dense_->rows_valid && !dense_->quadratic_soft;
+}
+
+// detail::prepare_rows for the active-set path. Rows whose stage data (C, D, soft rows) are those
+// of the rows kept keep their compression; per solve only what d and x0 change is redone, in the
+// order prepare_rows does it: d, its largest entry on active rows, the constant rows (x0 alone:
+// checked, or their soft penalty counted) and the tightest single-input bounds. Any other stage,
+// or new A, B, Q, R (condensed again here), prepares every row as prepare_rows and keeps them.
+bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
+  Workspace& w = *work_;
+  ActiveSet& a = *dense_;
+  if (!a.dyn_same) a.condense(qp);  // on failure (H not positive definite) the solve goes to the interior point
+  // A stage with new C, D values but the same nonzeros (a turning target's cone rows) takes the
+  // values in place.
+  bool same = a.rows_valid;
+  for (int i = 0; i <= a.N && same; ++i) same = a.stage_same[i] || a.same_pattern(w, qp, i);
+  if (!same) {
+    const bool ok = detail::prepare_rows(w, qp, settings_.tol);
+    a.keep_rows(w, qp);
+    return ok;
+  }
+  for (int i = 0; i <= a.N; ++i) {
+    if (i < a.N) w.b_tail[i] = a.flags[3 * i];
+    w.q_diag[i] = a.flags[3 * i + 1];
+    w.r_diag[i] = a.flags[3 * i + 2];
+    std::copy(qp.d[i].data(), qp.d[i].data() + w.nc[i], w.dv + w.ro[i]);
+  }
+  w.d_max = 0.0;
+  for (int k : a.active_rows) w.d_max = std::max(w.d_max, std::abs(w.dv[k]));
+  bool ok = true;
+  w.const_soft = 0.0;
+  for (size_t c = 0; c < a.const_rows.size(); ++c) {
+    const int k = a.const_rows[c];
+    const double lhs = k < w.ro[1] ? qp.C[0].row(k).dot(Eigen::Map<const Vector>(w.x, w.nx)) : 0.0;
+    const double viol = lhs - w.dv[k];
+    if (a.const_soft[c]) {
+      const double s = std::max(viol, 0.0);
+      w.const_soft += s * (w.zs[k] + 0.5 * w.Zs[k] * s);
+      w.sig[k] = s;
+    } else if (viol > settings_.tol * (1.0 + std::abs(lhs) + std::abs(w.dv[k]))) {
+      ok = false;
+    }
+  }
+  std::fill(w.ub_row, w.ub_row + w.inputs, -1);
+  std::fill(w.lb_row, w.lb_row + w.inputs, -1);
+  for (size_t b = 0; b < a.bound_rows.size(); ++b) {
+    const int k = a.bound_rows[b], c = a.bound_col[b];
+    const double val = w.val[w.ptr[k]], bound = w.dv[k] / val;
+    int& slot = val > 0.0 ? w.ub_row[c] : w.lb_row[c];
+    if (slot < 0) {
+      slot = k;
+    } else {
+      const double old = w.dv[slot] / w.val[w.ptr[slot]];
+      if (val > 0.0 ? bound < old : bound > old) slot = k;
+    }
+  }
+  return ok;
 }
 
 Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
   Workspace& w = *work_;
   ActiveSet& a = *dense_;
-  const detail::Kernels& K = *kernels_;
-  if (!a.same_data(qp) && !a.condense(qp)) return solve_converged(qp, false, settings_.max_iter, 0.0, settings_.warm_push);
+  if (!a.condensed) return solve_converged(qp, false, settings_.max_iter, 0.0, settings_.warm_push);
   const int N = a.N, nx = a.nx, n = a.n, cap = a.cap;
   double* Mw = a.Mw.data();
   double* Kl = a.Kl.data();
   constexpr double inf = std::numeric_limits<double>::infinity();
 
-  // Free response and the condensed gradient f (adjoint recursion of the cost at u = 0).
-  std::copy(w.x, w.x + nx, a.xf.data());
-  std::fill(w.ut, w.ut + w.inputs, 0.0);
-  K.rollout(w, qp, a.xf.data(), w.ut);
-  for (int i = N; i >= 0; --i) {
-    Eigen::Map<Vector> li(a.lamx.data() + i * nx, nx);
-    const Eigen::Map<const Vector> xi(a.xf.data() + i * nx, nx);
-    li = qp.q[i];
-    li.noalias() += qp.Q[i].lazyProduct(xi);
-    Eigen::Map<Vector> fi(a.f.data() + a.uo[i], a.nu[i]);
-    fi = qp.r[i];
-    if (i < N) {
-      const Eigen::Map<const Vector> next(a.lamx.data() + (i + 1) * nx, nx);
-      fi.noalias() += qp.B[i].transpose().lazyProduct(next);
-      li.noalias() += qp.A[i].transpose().lazyProduct(next);
-    }
-  }
+  const bool fixed = w.fixed_kernels;
+  if (fixed)
+    detail::FixedStage::gradient(a, qp, w.x, w.ut, w.tm);
+  else
+    detail::AnyStage::gradient(a, qp, w.x, w.ut, w.tm);
   const double* Linv = a.Linv.data();
   std::fill(a.c.begin(), a.c.end(), 0.0);  // c = L^-1 f
   for (int j = 0; j < n; ++j) {
@@ -243,13 +448,12 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
   // Per row: multiplier bound, 1 / the violation that counts (w.inv_t as scratch) and the weight of
   // g'z - d in the search for the entering row (w.inv_s: + at lam = 0, - at lam = ub, 0 in W or never).
   double* scan = w.inv_s;
-  auto set_state = [&](int k, signed char st) {
+  auto set_state = [&](int k, signed char st) {  // (active rows only)
     a.state[k] = st;
-    const bool never = w.act[k] == 0.0 || a.ub[k] == 0.0;
-    scan[k] = never || st == 1 ? 0.0 : st == 0 ? w.inv_t[k] : -w.inv_t[k];
+    scan[k] = a.ub[k] == 0.0 || st == 1 ? 0.0 : st == 0 ? w.inv_t[k] : -w.inv_t[k];
   };
-  for (int k = 0; k < w.rows; ++k) {
-    a.ub[k] = w.soft[k] > 0.0 ? w.zs[k] : inf;
+  std::fill(a.state.begin(), a.state.end(), 0);  // constant rows stay at 0 and are never scanned
+  for (int k : a.active_rows) {
     w.inv_t[k] = 1.0 / (0.01 * settings_.tol * std::max(1.0, std::abs(w.dv[k])));
     set_state(k, 0);
   }
@@ -317,8 +521,28 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
     }
     for (int r = 0; r < n; ++r)  // u = Linv' v
       w.u[r] = detail::dot(Linv + static_cast<size_t>(r) * n + r, a.v.data() + r, n - r);
-    K.rollout(w, qp, w.x, w.u);
-    detail::g_mul_all(w, w.u, w.x, w.gz);
+    if (fixed)
+      detail::FixedStage::rollout(a, qp, w.x, w.u, w.tm);
+    else
+      detail::AnyStage::rollout(a, qp, w.x, w.u, w.tm);
+  };
+  // G z of the active rows (a box row: one product), then the most violated row in row order (the
+  // first of equals): lam = 0 and g'z > d, or a soft row at lam = zs with g'z < d.
+  auto most_violated = [&]() {
+    const size_t n1 = a.one_row.size(), nm = a.multi_row.size();
+    for (size_t j = 0; j < n1; ++j) w.gz[a.one_row[j]] = w.val[a.one_pos[j]] * *a.one_src[j];
+    for (size_t j = 0, e = 0; j < nm; ++j) {
+      double acc = 0.0;
+      for (const size_t end = a.multi_end[j]; e < end; ++e) acc += w.val[a.multi_pos[e]] * *a.multi_src[e];
+      w.gz[a.multi_row[j]] = acc;
+    }
+    int enter = -1;
+    double worst = 1.0;
+    for (int k : a.active_rows) {
+      const double viol = (w.gz[k] - w.dv[k]) * scan[k];
+      if (viol > worst) worst = viol, enter = k;
+    }
+    return enter;
   };
 
   Status st = Status::MaxIter;
@@ -327,13 +551,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
   while (it < max_iter) {
     if (need_primal) {
       primal();
-      // The most violated row: lam = 0 and g'z > d, or a soft row at lam = zs with g'z < d.
-      int enter = -1;
-      double worst = 1.0;
-      for (int k = 0; k < w.rows; ++k) {
-        const double viol = (w.gz[k] - w.dv[k]) * scan[k];
-        if (viol > worst) worst = viol, enter = k;
-      }
+      const int enter = most_violated();
       if (enter < 0) {
         st = Status::Solved;
         break;
@@ -462,6 +680,9 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
   if (st != Status::Solved) return st;
   // Multipliers per row, soft slacks and their duals, and the dynamics multipliers by the adjoint
   // recursion pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i (the residuals' conventions).
+  detail::g_mul(w, 0, w.u, w.x, w.gz);  // the constant rows' G z too (stage 0: C x0; later stages: 0)
+  for (int k : a.const_rows)
+    if (k >= w.ro[1]) w.gz[k] = 0.0;
   for (int k = 0; k < w.rows; ++k) {
     w.lam[k] = a.state[k] == 2 ? a.ub[k] : 0.0;
     if (w.act[k] > 0.0 && w.soft[k] > 0.0) w.sig[k] = std::max(w.gz[k] - w.dv[k], 0.0);
@@ -471,13 +692,10 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
     if (w.soft[k] > 0.0) w.mu[k] = w.zs[k] - w.lam[k];
     w.t[k] = std::max(w.dv[k] - w.gz[k] + w.sig[k], 0.0);
   }
-  for (int i = N; i >= 1; --i) {
-    Eigen::Map<Vector> pim(w.pi + (i - 1) * nx, nx);
-    pim = qp.q[i];
-    pim.noalias() += qp.Q[i].lazyProduct(Eigen::Map<const Vector>(w.x + i * nx, nx));
-    if (i < N) pim.noalias() += qp.A[i].transpose().lazyProduct(Eigen::Map<const Vector>(w.pi + i * nx, nx));
-    detail::gt_mul_add(w, i, w.lam, w.ut + w.uo[i], w.pi + (i - 1) * nx);
-  }
+  if (fixed)
+    detail::FixedStage::multipliers(a, w, qp);
+  else
+    detail::AnyStage::multipliers(a, w, qp);
   return Status::Solved;
 }
 

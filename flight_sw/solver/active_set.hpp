@@ -8,11 +8,15 @@
 // once and kept, with a copy of the data they came from; a solve whose A, B, Q or R differ
 // re-condenses in place (plain loops, no allocation). f, x_free and the condensed rows are per
 // solve; a row is condensed only when it enters the active set.
+// The rows' compressed form (the workspace's ptr/col/val) is kept too, with a copy of each stage's
+// C, D and soft-row data: a stage whose data are bytewise the same as last solve's keeps it (and
+// needs no finiteness check: the copy was checked); only d and x0 are read for it per solve.
 #pragma once
 
 #include <vector>
 
 #include "flight_sw/solver/ocp_qp.hpp"
+#include "flight_sw/solver/workspace.hpp"
 
 namespace rvd::solver::detail {
 
@@ -37,10 +41,35 @@ struct ActiveSet {
   std::vector<double> Mw, Kl, e, lam, lam_star, dir, v, tmp;
   std::vector<int> slot_row;
   std::vector<signed char> state;  // per row: 0 multiplier 0, 1 in W, 2 at its upper bound (soft row, zs)
-  std::vector<double> ub;          // per row: multiplier bound (zs on soft rows, inf on hard rows)
+  std::vector<double> ub;          // per row: multiplier bound (zs on soft rows, inf on hard rows; kept with the rows)
+
+  // Rows (per stage): the C, D, idxs, zs, Zs whose compression the workspace holds, at offsets
+  // co[i], doff[i], so[i]; valid when rows_valid (another row preparation clears it).
+  bool rows_valid = false;
+  std::vector<double> Cc, Dc, zsc, Zsc;
+  std::vector<int> idxc, co, doff, so;
+  std::vector<signed char> stage_same;  // per solve: stage i's row data equal the copy
+  bool dyn_same = false;                // per solve: A, B, Q, R are the ones condensed
+  std::vector<int> flags;              // b_tail, q_diag, r_diag of the condensed data (3 (N+1))
+  // Per-solve refresh of kept rows (fast_mpc.cpp's prepare_rows does the same on all rows):
+  // constant rows (k, soft in the QP), single-input hard rows (input bounds), active rows.
+  std::vector<int> const_rows, const_soft, bound_rows, bound_col, active_rows;
+  bool quadratic_soft = false;  // an active soft row with Zs > 0: the interior point's QP
+  // G z of the active rows in the primal check: rows with one nonzero (row, the variable's address
+  // in the workspace, the value's position in w.val), and the others (row, end of its entries in
+  // multi_src / multi_pos). A box row costs one product.
+  std::vector<int> one_row, one_pos, multi_row, multi_end, multi_pos;
+  std::vector<const double*> one_src, multi_src;
 
   explicit ActiveSet(const OcpQpDims& dims);
   bool same_data(const OcpQp& qp) const;
+  // Stage i's C, D and soft-row data equal the copy kept with the rows.
+  bool same_rows(const OcpQp& qp, int i) const;
+  // Stage i's C, D have the nonzeros of the rows kept (and its soft rows are the same): their values
+  // replace the kept ones in the workspace and the copy. False (values partly written) otherwise.
+  bool same_pattern(Workspace& w, const OcpQp& qp, int i);
+  // Keep the rows the workspace holds now (after prepare_rows) with the QP's data they came from.
+  void keep_rows(const Workspace& w, const OcpQp& qp);
   // H = Gamma'Qbar Gamma + Rbar and its Cholesky factor; false when H is not positive definite.
   bool condense(const OcpQp& qp);
 };

@@ -44,8 +44,11 @@ bool FastMpcSolver::time_up() const {
 }
 
 // Shapes, finiteness and soft-row data, without allocating (OcpQp::validate() builds a message;
-// callers that want the reason call it themselves).
-bool FastMpcSolver::inputs_ok(const OcpQp& qp, const Vector& x0) const {
+// callers that want the reason call it themselves). With `kept` (the active-set path), blocks
+// bytewise equal to the copies it keeps (checked when kept) are not scanned again: A, B, Q, R when
+// they are the ones condensed, a stage's C, D and soft-row data when they are the ones its rows
+// were prepared from (kept->stage_same[i], for prepare_active_set).
+bool FastMpcSolver::inputs_ok(const OcpQp& qp, const Vector& x0, detail::ActiveSet* kept) const {
   if (!work_) return false;
   const int N = dims_.N, nx = dims_.nx;
   if (qp.dims.N != N || qp.dims.nx != nx || qp.dims.nu != dims_.nu || qp.dims.nc != dims_.nc) return false;
@@ -59,16 +62,18 @@ bool FastMpcSolver::inputs_ok(const OcpQp& qp, const Vector& x0) const {
     return false;
   const bool any_soft = !dims_.ns.empty();
   if (any_soft && (qp.idxs.size() != n1 || qp.zs.size() != n1 || qp.Zs.size() != n1)) return false;
-  auto ok = [](const auto& m, long rows, long cols) {
-    return m.rows() == rows && m.cols() == cols && detail::all_finite(m.data(), m.size());
+  auto ok = [](const auto& m, long rows, long cols, bool known = false) {
+    return m.rows() == rows && m.cols() == cols && (known || detail::all_finite(m.data(), m.size()));
   };
+  const bool dyn = kept && (kept->dyn_same = kept->same_data(qp));
   for (int i = 0; i <= N; ++i) {
     const int m = dims_.nu[i], k = dims_.nc[i], ns = dims_.soft_rows(i);
-    if (i < N && !(ok(qp.A[i], nx, nx) && ok(qp.B[i], nx, m) && ok(qp.b[i], nx, 1))) return false;
-    if (!(ok(qp.Q[i], nx, nx) && ok(qp.q[i], nx, 1) && ok(qp.R[i], m, m) && ok(qp.r[i], m, 1) && ok(qp.C[i], k, nx) &&
-          ok(qp.D[i], k, m) && ok(qp.d[i], k, 1)))
+    const bool rows = kept && (kept->stage_same[i] = kept->same_rows(qp, i));
+    if (i < N && !(ok(qp.A[i], nx, nx, dyn) && ok(qp.B[i], nx, m, dyn) && ok(qp.b[i], nx, 1))) return false;
+    if (!(ok(qp.Q[i], nx, nx, dyn) && ok(qp.q[i], nx, 1) && ok(qp.R[i], m, m, dyn) && ok(qp.r[i], m, 1) &&
+          ok(qp.C[i], k, nx, rows) && ok(qp.D[i], k, m, rows) && ok(qp.d[i], k, 1)))
       return false;
-    if (!any_soft) continue;
+    if (!any_soft || rows) continue;
     if (static_cast<int>(qp.idxs[i].size()) != ns || !ok(qp.zs[i], ns, 1) || !ok(qp.Zs[i], ns, 1)) return false;
     for (int s = 0; s < ns; ++s) {
       const int j = qp.idxs[i][s];
@@ -84,11 +89,13 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
   t_start_ = clock_now();
   info_ = Info{};
   Status st = Status::InvalidInput;
-  if (!settings_.invalid() && inputs_ok(qp, x0)) {
+  detail::ActiveSet* kept = uses_active_set() ? dense_.get() : nullptr;  // rows and data kept across solves
+  if (!settings_.invalid() && inputs_ok(qp, x0, kept)) {
     Workspace& w = *work_;
     const detail::Kernels& K = *kernels_;
     std::copy(x0.data(), x0.data() + w.nx, w.x);
-    if (!detail::prepare_rows(w, qp, settings_.tol)) {
+    if (dense_ && !kept) dense_->rows_valid = false;  // prepare_rows overwrites the rows kept
+    if (!(kept ? prepare_active_set(qp) : detail::prepare_rows(w, qp, settings_.tol))) {
       st = Status::Infeasible;
     } else {
       const bool warm = settings_.warm_start && has_warm_;

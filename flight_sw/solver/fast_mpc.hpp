@@ -85,7 +85,8 @@ class FastMpcSolver {
   Status solve_active_set(const OcpQp& qp);  // active_set.cpp
 
  private:
-  bool inputs_ok(const OcpQp& qp, const Vector& x0) const;
+  bool inputs_ok(const OcpQp& qp, const Vector& x0, detail::ActiveSet* kept = nullptr) const;
+  bool prepare_active_set(const OcpQp& qp);  // active_set.cpp: prepare_rows for the kept rows
   void publish(const OcpQp& qp);  // iterate -> x_, u_, lam_, pi_, sig_
 
   OcpQpDims dims_;

@@ -42,12 +42,17 @@ TEST_CASE("solve() allocates nothing, in every mode and outcome") {
     OcpQp reweighted = qp;  // other weights: the active-set path condenses again inside solve()
     reweighted.Q[1] *= 2.0;
     reweighted.R[0] *= 0.5;
+    OcpQp turned = qp;  // new row values on the same nonzeros (a turning target's cone): taken in place
+    turned.C[N] *= 1.01;
+    OcpQp reshaped = qp;  // other nonzeros: every row prepared again
+    reshaped.C[1].setConstant(1e-3);
+    reshaped.d[1].setConstant(1e3);
     Vector x0 = docking_x0();
 
     Vector x1 = x0;  // the next period's initial state: the plan's x1 (sized before counting)
     FastMpcSolver converged(qp.dims);
     FastMpcSolver barrier(qp.dims, fixed_barrier_settings(1e-3, 30));
-    Status s1 = Status::InvalidInput, s2 = s1, s3 = s1, s4 = s1, s5 = s1, s6 = s1, s7 = s1;
+    Status s1 = Status::InvalidInput, s2 = s1, s3 = s1, s4 = s1, s5 = s1, s6 = s1, s7 = s1, s8 = s1, s9 = s1, s10 = s1;
     int ipm_iterations = -1;
     const long n = allocations_during([&] {
       s1 = converged.solve(qp, x0);  // cold (the active set: condenses A, B, Q, R first)
@@ -65,10 +70,16 @@ TEST_CASE("solve() allocates nothing, in every mode and outcome") {
       converged.solve(qp, x0);
       converged.settings().time_limit_us = 0;
       s7 = converged.solve(reweighted, x0);
+      s8 = converged.solve(turned, x0);
+      s9 = converged.solve(reshaped, x0);
+      s10 = converged.solve(qp, x0);
     });
     CHECK(n == 0);
     CHECK(ipm_iterations == 0);  // the active-set path answered
     CHECK(s7 == Status::Solved);
+    CHECK(s8 == Status::Solved);
+    CHECK(s9 == Status::Solved);
+    CHECK(s10 == Status::Solved);
     CHECK(s1 == Status::Solved);
     CHECK(s2 == Status::Solved);
     CHECK(s3 == Status::Solved);
