@@ -290,7 +290,10 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
         break;
       }
     }
-    double alpha = std::min(1.0, S.step_to_boundary * amax);
+    // Near the solution the fraction to the boundary only slows the last iterations down (each
+    // would shrink the gap by 1 - step_to_boundary at best): go closer once the gap is small.
+    const double tau = gap <= S.late_from_gap * std::max(1.0, std::abs(obj)) ? S.step_to_boundary_late : S.step_to_boundary;
+    double alpha = std::min(1.0, tau * amax);
     const Step& s = w.step;
     // On a primal-dual feasible iterate the gap after a step is quadratic in alpha with curvature
     // dt'dlam + ds'dmu = dz'H dz >= 0 (QPs, unlike LPs): a long step along a stiff direction can
