@@ -7,7 +7,9 @@
   horizon set: tests/guidance_laws/cvxpygen_small) builds and flies natively; its first delta-v on
   Case 1 equals our MPC's on the same QP (step 0 of the ideal run: the same state, so the same QP), and
   every QP of the first periods, solved by both (law.shadow = 1), agrees; under qemu-aarch64 (rpi3 build)
-  the same steps give the same commands and identical instruction counts in two runs.
+  the same steps give the same commands and identical instruction counts in two runs. The generator
+  cuts QOCOGEN's long straight-line functions into parts (so that GCC builds them in minutes): a cut
+  function computes bit for bit what the whole one does; functions with locals are left whole.
 """
 import ctypes
 import subprocess
@@ -172,3 +174,62 @@ def test_a_generated_code_law_under_qemu_repeats_its_instruction_counts(tmp_path
     native_meta, native, _ = _first_steps(tmp_path, generated[0], manifest.flight_args(), "native", steps=3)
     cols = ["dv_cmd_x_mps", "dv_cmd_y_mps", "dv_cmd_z_mps"]
     assert np.abs(a[cols].to_numpy(float) - native[cols].to_numpy(float)).max() <= 1e-9
+
+
+def _generator():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "cvxpygen_generate", ROOT / "examples" / "guidance" / "cvxpygen_common" / "generate.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _straight_line_c(rng, n_stmts: int) -> str:
+    """A function in the shape QOCOGEN writes its LDL in: statements and if/else blocks on a struct's arrays."""
+    body = []
+    for k in range(n_stmts):
+        i, j, m = rng.integers(0, 64, 3)
+        if k % 3 == 0:
+            body += [f"   w->d[{i}] = w->a[{j}] - w->d[{m}] * w->l[{i}] * w->l[{j}];",
+                     f"   if (w->d[{i}] < 0) {{", f"       w->d[{i}] = w->reg;", "   }", "   else {",
+                     f"       w->d[{i}] += w->reg;", "   }"]
+        else:
+            body.append(f"   w->l[{i}] = (w->a[{m}] - w->l[{j}] * w->d[{m}]) / (1.0 + w->d[{i}] * w->d[{i}]);")
+    return ("typedef struct { double a[64]; double d[64]; double l[64]; double reg; } Work;\n"
+            "void factor(Work* w) {\n" + "\n".join(body) + "\n}\n")
+
+
+def test_cutting_generated_functions_into_parts_computes_the_same(tmp_path):
+    """split_long_functions (the QOCOGEN code is cut so that GCC builds it in minutes): the cut function
+    gives bit-identical results to the whole one, built with the same flags, on random data."""
+    gen = _generator()
+    rng = np.random.default_rng(1)
+    whole = _straight_line_c(rng, 300)
+    cut = gen.split_long_functions(whole, 40)
+    assert cut.count("__attribute__((noinline)) static void factor_part") >= 10
+    assert "factor_part0(w);" in cut and len(cut.splitlines()) > len(whole.splitlines())
+    results = []
+    for name, text in (("whole", whole), ("cut", cut)):
+        src = tmp_path / f"{name}.c"
+        src.write_text(text)
+        lib = tmp_path / f"lib{name}.so"
+        subprocess.run(["cc", "-O2", "-shared", "-fPIC", str(src), "-o", str(lib)], check=True)
+        data = np.ascontiguousarray(rng.uniform(-1, 1, 64 * 3 + 1) if name == "whole" else results[0][1])
+        buf = data.copy()
+        ctypes.CDLL(str(lib)).factor(buf.ctypes.data_as(ctypes.c_void_p))
+        results.append((buf, data))
+    assert np.isfinite(results[0][0]).all() and not np.array_equal(results[0][0], results[0][1])
+    assert np.array_equal(results[0][0], results[1][0])
+
+
+def test_functions_with_locals_or_early_returns_are_left_whole():
+    gen = _generator()
+    body = "\n".join(f"   w->x[{i}] = w->x[{i + 1}] * 2.0;" for i in range(50))
+    for extra in ("   double t = w->x[0];", "   int k;", "   return;"):
+        text = f"void f(Work* w) {{\n{body}\n{extra}\n{body}\n}}\n"
+        assert gen.split_long_functions(text, 20) == text
+    short = f"void f(Work* w) {{\n{body}\n}}\n"
+    assert gen.split_long_functions(short, 50) == short
+    assert "f_part1(w);" in gen.split_long_functions(short, 20)

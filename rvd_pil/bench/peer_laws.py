@@ -6,6 +6,7 @@ and the closed loop's delta-v; with the ratios to our Fast MPC.
                                                    and the determinism checks (ideal Case 1 twice per target)
     python -m rvd_pil.bench.peer_laws --laws lq_ecg        only some peers (fast_mpc is always there)
     python -m rvd_pil.bench.peer_laws --targets rpi3 --no-checks
+    python -m rvd_pil.bench.peer_laws --horizon-sets default   only the default horizons 30/15/12 (checks fly them too)
     python -m rvd_pil.bench.peer_laws --full               the PIL campaign's scenarios (Case 1 and two random starts)
     python -m rvd_pil.bench.peer_laws --report-only        the page from the runs already made
 
@@ -46,10 +47,13 @@ SAME_QP = {"cvxpygen_qoco", "cvxpygen_osqp"}
 OURS = "fast_mpc"
 
 
-def run_campaign(law: str, out: Path, targets: list[str], scenarios: list[str], checks: bool) -> int:
+def run_campaign(law: str, out: Path, targets: list[str], scenarios: list[str], checks: bool,
+                 horizon_sets: str = "all") -> int:
     from rvd_pil.bench import campaign
 
     args = ["--targets", ",".join(targets), "--scenarios", ",".join(scenarios), "--no-system", "--out", str(out)]
+    if horizon_sets != "all":
+        args += ["--horizon-sets", horizon_sets]
     if not checks:
         args.append("--no-checks")
     if law != OURS:
@@ -224,7 +228,7 @@ def summary_lines(t: pd.DataFrame) -> list[str]:
 
 
 def main(argv=None) -> int:
-    from rvd_pil.bench.campaign import HORIZON_SETS
+    from rvd_pil.bench.campaign import DEFAULT_HORIZONS, HORIZON_SETS
 
     ap = argparse.ArgumentParser(prog="python -m rvd_pil.bench.peer_laws", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
@@ -235,7 +239,10 @@ def main(argv=None) -> int:
     ap.add_argument("--no-checks", action="store_true", help="skip the determinism checks of every campaign")
     ap.add_argument("--out", type=Path, default=paths.reports_root() / "peers")
     ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--horizon-sets", choices=("all", "default"), default="all",
+                    help="the campaign's three horizon sets (default) or its default 30/15/12 only")
     a = ap.parse_args(argv)
+    horizon_sets = HORIZON_SETS if a.horizon_sets == "all" else (DEFAULT_HORIZONS,)
     laws = [l for l in a.laws.split(",") if l]
     unknown = [l for l in laws if l not in LAWS]
     if unknown:
@@ -248,19 +255,19 @@ def main(argv=None) -> int:
     if not a.report_only:
         for law in [OURS, *laws]:
             print(f"== {law}", flush=True)
-            rc = run_campaign(law, base / law, targets, scenarios, not a.no_checks)
+            rc = run_campaign(law, base / law, targets, scenarios, not a.no_checks, a.horizon_sets)
             if rc:
                 print(f"{law}: campaign failed (exit {rc})", file=sys.stderr)
                 return rc
             if law in SAME_QP:
-                run_accuracy(law, base / "accuracy" / law, scenarios, HORIZON_SETS)
+                run_accuracy(law, base / "accuracy" / law, scenarios, horizon_sets)
     t = side_by_side(base, laws)
     if t.empty:
         print("no campaign results", file=sys.stderr)
         return 1
     settings = {"what": f"Targets {', '.join(targets)}; scenarios {', '.join(scenarios)} with the nonlinear truth, J2, "
                         f"drag, thrust and sensor noise (seed 0), finite burns, the control delay of the cycle model; "
-                        f"horizon sets {', '.join('/'.join(map(str, h)) for h in HORIZON_SETS)} (rendezvous/approach/docking)."}
+                        f"horizon sets {', '.join('/'.join(map(str, h)) for h in horizon_sets)} (rendezvous/approach/docking)."}
     t.to_csv(base / "peers.csv", index=False)
     (base / "peers.json").write_text(json.dumps({"settings": settings, "rows": json.loads(t.to_json(orient="records"))}, indent=1))
     page = write_page(base, t, laws, settings)

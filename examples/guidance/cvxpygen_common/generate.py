@@ -6,9 +6,12 @@ their C code from CVXPYgen, for the peer laws cvxpygen_qoco and cvxpygen_osqp.
 Run by rvd_pil/host_sim/guidance_build.py before every build of such a law (the law.toml's [generate] table). One
 problem per phase and horizon (the PIL campaign's horizon sets by default), each with CVXPYgen's prefix
 (r15_, a5_, d12_, ...). The generated C goes to OUT/<key>/, where the key hashes everything the code
-depends on (this file, the solver, its settings, the horizons, the weights the flight software's QP
-builder uses, the versions of cvxpy, cvxpygen and the solver's generator): an unchanged key returns at
-once. OUT/sources.json lists what the build compiles.
+depends on (this file, the solver, its settings, the horizons, the part size, the weights the flight
+software's QP builder uses, the versions of cvxpy, cvxpygen and the solver's generator): an unchanged
+key returns at once, and the build trees keep their objects. OUT/sources.json lists what the build
+compiles. CVXPYgen's own output, the slow part (QOCOGEN: minutes per problem), is cached per problem
+in OUT/../cvxpygen_solver_code/ under a key of what it depends on (solver_code), shared by every law
+that generates that problem.
 
 What is a parameter (changes per step, the law copies it from the QP our builder made): x0, the CW
 dynamics A and B (set once: they follow the orbit, the period and the burn model), the linear state
@@ -25,12 +28,16 @@ Several generated problems in one executable: each problem's C files are copied 
 that their quoted includes find that problem's headers) and compiled through a wrapper that renames
 every global symbol the solver code defines without the problem's prefix (found with nm on a native
 object build), e.g. qoco_custom_solve -> r15_qoco_custom_solve. A small glue file per problem gives
-the law one table (rvd_cpg.h) for all of them.
+the law one table (rvd_cpg.h) for all of them. Generated functions longer than --split-lines lines (the
+straight-line LDL, solves and data of QOCOGEN) are cut into parts first (split_long_functions): GCC
+then builds them in minutes instead of an hour, at the same -O3 as the flight software.
 """
 from __future__ import annotations
 
 import argparse
+import fcntl
 import hashlib
+import inspect
 import json
 import re
 import shutil
@@ -45,6 +52,10 @@ HERE = Path(__file__).resolve().parent
 PHASES = {"rendezvous": 1, "approach": 2, "docking": 3}
 # The PIL campaign's horizon sets (rvd_pil/bench/campaign.py HORIZON_SETS), per phase.
 DEFAULT_HORIZONS = "15,30,45/5,15,30/5,12,30"
+# Longest generated function compiled whole (split_long_functions): parts of 200 lines build the
+# rendezvous N = 15 LDL (8400 lines in one function) in 15 s of CPU instead of 203 s (GCC 12, -O3,
+# Cortex-A9; 400 lines: 25 s, 100 lines: 13 s).
+SPLIT_LINES = 200
 # Tolerances, stated explicitly for both solvers (QOCOGEN's settings start zeroed in the generated code:
 # the law calls cpg_set_solver_default_settings() first, then these).
 SETTINGS = {
@@ -155,15 +166,14 @@ def _versions(solver: str) -> list[str]:
     return out
 
 
-def _flatten(code: Path, solver: str, dest: Path) -> list[Path]:
-    """Copies one problem's C files into `dest` (one folder, so that each quoted include finds this problem's
-    header); returns the C sources to compile."""
+def _flatten(code: Path, dest: Path) -> None:
+    """Copies one problem's C files, as CVXPYgen wrote them, into `dest` (one folder, so that each quoted
+    include finds this problem's header)."""
     dest.mkdir(parents=True, exist_ok=True)
     c = code / "c"
     files = list((c / "src").glob("cpg_*.c")) + list((c / "include").glob("*.h"))
     files += [p for p in (c / "solver_code").rglob("*") if p.suffix in (".c", ".h")]
     skip = {"cpg_example.c", "runtest.c", "emosqp.c"}
-    sources = []
     seen: dict[str, Path] = {}
     for f in files:
         if f.name in skip or "lib/amd" in str(f):
@@ -172,9 +182,54 @@ def _flatten(code: Path, solver: str, dest: Path) -> list[Path]:
             raise SystemExit(f"two different files named {f.name} in {code}")
         seen[f.name] = f
         shutil.copy2(f, dest / f.name)
-        if f.suffix == ".c":
-            sources.append(dest / f.name)
-    return sorted(sources)
+
+
+_FUNCTION = re.compile(r"^void ([A-Za-z_]\w*)\(([^()]*)\) \{$")
+_LOCAL = re.compile(r"^\s*(const\s+)?(unsigned\s+)?(int|double|float|char|long|short|\w+_(int|float)|[A-Z]\w*)"
+                    r"[\s*]+[A-Za-z_]\w*\s*(=|;|\[)|^\s*(return|goto)\b|^\s*\w+:(?!:)")
+
+
+def split_long_functions(text: str, max_lines: int) -> str:
+    """The C text with every long `void f(...) { ... }` (more than max_lines lines, opening at column 0 and
+    closing with a lone `}`) cut at top-level statements into noinline static parts called in turn.
+
+    QOCOGEN writes its sparse LDL factorisation and solves, and the problem data, as straight-line
+    functions of tens of thousands of lines; GCC's alias walking and first scheduling pass are quadratic in
+    a function's (and a block's) length, so that one such function costs minutes at -O2/-O3 (rendezvous,
+    N = 15: 200 s; N = 45: far more). Parts of max_lines lines compile in time linear in the file. A part
+    boundary costs a call and the reload of what the previous part held in registers. Only functions whose
+    state lives in their parameters are cut (no locals, return, goto or labels at the top level, no string
+    literals); others are left whole."""
+    lines = text.split("\n")
+    out, i = [], 0
+    while i < len(lines):
+        m = _FUNCTION.match(lines[i])
+        end = lines.index("}", i) if m and "}" in lines[i:] else -1
+        if not m or end - i - 1 <= max_lines:
+            out.append(lines[i])
+            i += 1
+            continue
+        name, params, body = m.group(1), m.group(2), lines[i + 1:end]
+        parts, part, depth, whole = [], [], 0, any('"' in ln for ln in body)
+        for ln in body:
+            if depth == 0 and _LOCAL.match(ln):
+                whole = True
+            if depth == 0 and len(part) >= max_lines and not ln.lstrip().startswith("else") \
+                    and part[-1].rstrip().endswith((";", "}")):
+                parts.append(part)
+                part = []
+            part.append(ln)
+            depth += ln.count("{") - ln.count("}")
+        parts.append(part)
+        if whole or depth != 0 or len(parts) == 1:
+            out += lines[i:end + 1]
+        else:
+            args = ", ".join(p.split()[-1].lstrip("*") for p in params.split(",")) if params.strip() not in ("", "void") else ""
+            for k, part in enumerate(parts):
+                out += [f"__attribute__((noinline)) static void {name}_part{k}({params}) {{", *part, "}", ""]
+            out += [lines[i], *(f"   {name}_part{k}({args});" for k in range(len(parts))), "}"]
+        i = end + 1
+    return "\n".join(out)
 
 
 def _global_symbols(sources: list[Path], folder: Path) -> set[str]:
@@ -263,19 +318,52 @@ const rvd_cpg_problem {pfx}rvd_problem = {{
     return path
 
 
-def generate_problem(phase: str, N: int, solver: str, dest: Path) -> tuple[str, list[Path]]:
+def solver_code(phase: str, N: int, solver: str, w: dict, versions: list[str], cache: Path) -> Path:
+    """The C code CVXPYgen writes for one problem, flattened, in cache/<prefix>-<solver>-<key>/, where the key hashes
+    what that code depends on (the model, the weights, the solver, the generators' versions): QOCOGEN
+    takes minutes per problem (rendezvous N = 45: 9 min), so an edit of the rest of this file (the glue,
+    the settings, the part size) does not pay it again."""
     from cvxpygen import cpg
 
+    prefix = f"{phase[0]}{N}"
+    key = hashlib.sha256(json.dumps({
+        "model": inspect.getsource(model), "params": PARAM_NAMES, "phase": phase, "N": N, "solver": solver,
+        "versions": versions, "weights": {k: np.asarray(v).tolist() for k, v in w.items()}}, sort_keys=True).encode())
+    folder = cache / f"{prefix}-{solver}-{key.hexdigest()[:16]}"
+    cache.mkdir(parents=True, exist_ok=True)
+    with open(cache / ".lock", "w") as lock:  # laws generating at once (a test's and the campaign's) share it
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (folder / "complete").exists():
+            return folder
+        for old in cache.glob(f"{prefix}-{solver}-*"):  # one version kept per problem
+            shutil.rmtree(old)
+        raw = cache / f"tmp-{prefix}-{solver}"
+        if raw.exists():
+            shutil.rmtree(raw)
+        prob, X, U, P = model(phase, N, w)
+        cpg.generate_code(prob, code_dir=str(raw), solver=solver, prefix=prefix, wrapper=False)
+        _flatten(raw, folder)
+        shutil.rmtree(raw)
+        (folder / "complete").write_text("")
+    return folder
+
+
+def generate_problem(phase: str, N: int, solver: str, dest: Path, cache: Path, versions: list[str],
+                     split_lines: int) -> tuple[str, list[Path]]:
     w = weights(phase, N)
     prob, X, U, P = model(phase, N, w)
     prefix = f"{phase[0]}{N}"
-    raw = dest / "raw" / prefix
-    if raw.exists():
-        shutil.rmtree(raw)
-    raw.parent.mkdir(parents=True, exist_ok=True)
-    cpg.generate_code(prob, code_dir=str(raw), solver=solver, prefix=prefix, wrapper=False)
+    code = solver_code(phase, N, solver, w, versions, cache)
     folder = dest / prefix
-    sources = _flatten(raw, solver, folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    sources = []
+    for f in sorted(code.glob("*.[ch]")):
+        text = f.read_text()
+        if f.suffix == ".c" and split_lines:
+            text = split_long_functions(text, split_lines)
+        (folder / f.name).write_text(text)
+        if f.suffix == ".c":
+            sources.append(folder / f.name)
     shutil.copy2(HERE / "rvd_cpg.h", folder / "rvd_cpg.h")
     (folder / "rvd_rename.h").write_text("")
     syms = _global_symbols(sources, folder)
@@ -290,7 +378,6 @@ def generate_problem(phase: str, N: int, solver: str, dest: Path) -> tuple[str, 
         wrap.write_text(f'#include "rvd_rename.h"\n#include "{src.name}"\n')
         wrappers.append(wrap)
     wrappers.append(_glue(prefix, phase, N, solver, P, folder, w))
-    shutil.rmtree(raw)
     return prefix, wrappers
 
 
@@ -300,13 +387,17 @@ def main(argv=None) -> int:
     ap.add_argument("--solver", choices=sorted(SETTINGS), required=True)
     ap.add_argument("--horizons", default=DEFAULT_HORIZONS,
                     help="rendezvous/approach/docking horizons, comma-separated per phase (default %(default)s)")
+    ap.add_argument("--split-lines", type=int, default=SPLIT_LINES,
+                    help="cut generated functions longer than this into parts (0: never; default %(default)s)")
     a = ap.parse_args(argv)
     horizons = dict(zip(PHASES, ([int(n) for n in part.split(",") if n] for part in a.horizons.split("/"))))
     if len(horizons) != 3 or not all(horizons.values()):
         raise SystemExit(f"--horizons: three phases, got {a.horizons!r}")
+    versions = _versions(a.solver)
     key_src = json.dumps({
         "generator": hashlib.sha256(Path(__file__).read_bytes() + (HERE / "rvd_cpg.h").read_bytes()).hexdigest(),
-        "solver": a.solver, "settings": SETTINGS[a.solver], "horizons": horizons, "versions": _versions(a.solver),
+        "solver": a.solver, "settings": SETTINGS[a.solver], "horizons": horizons, "versions": versions,
+        "split_lines": a.split_lines,
         "weights": {f"{ph}{N}": {k: np.asarray(v).tolist() for k, v in weights(ph, N).items()}
                     for ph, Ns in horizons.items() for N in Ns},
     }, sort_keys=True)
@@ -327,7 +418,8 @@ def main(argv=None) -> int:
                     prefix, srcs = json.loads(done.read_text())
                     srcs = [Path(x) for x in srcs]
                 else:
-                    prefix, srcs = generate_problem(ph, N, a.solver, dest)
+                    prefix, srcs = generate_problem(ph, N, a.solver, dest, out.parent / "cvxpygen_solver_code", versions,
+                                                    a.split_lines)
                     done.write_text(json.dumps([prefix, [str(x) for x in srcs]]))
                 prefixes.append(prefix)
                 sources += srcs
