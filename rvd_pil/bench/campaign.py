@@ -178,6 +178,7 @@ class Campaign:
 
     # -- one target ------------------------------------------------------------------------------
     def target(self, name: str) -> dict:
+        from rvd_pil.host_sim.cli import emulated_lease_args
         from rvd_pil.qemu import build, cycles, plugin, system, targets, user
 
         spec = self.spec
@@ -208,7 +209,8 @@ class Campaign:
             profiler = plugin.BlockProfiler(out=run_dir.with_suffix(".blocks"),
                                             cache=model.cache_geometry if cache else None, library=profile_lib)
             clock = user.target_clock_args(cpi, t.clock_hz)
-            return lambda args: user.command(t, exe.path, [*args, *clock], plugin=[counter, profiler])
+            lease = emulated_lease_args(spec.cmd_timeout_s)  # a heavy step outlasts the default lease
+            return lambda args: user.command(t, exe.path, [*args, *clock, *lease], plugin=[counter, profiler])
 
         def priced(run_dir: Path, miss_rates_from: Path | None = None) -> Path:
             return cycles.price_run(run_dir.with_suffix(".blocks"), exe.path, model, run_dir / "cycles.csv",

@@ -131,6 +131,15 @@ class CliError(Exception):
     """A bad input: printed as one line, exit code 2."""
 
 
+def emulated_lease_args(cmd_timeout_s: float) -> list[str]:
+    """The lease an emulated flight announces: as long as the host waits for a command. The flight sends
+    nothing while its guidance step runs, and under QEMU with the profiler a heavy step (a generated
+    peer solver at its iteration cap) lasts longer than the default 20 s of wall time; with the default
+    the host's Zenoh session expired in mid-step and the run ended "flight software lost". A flight
+    given its own --lease-ms later on the command line keeps that one."""
+    return ["--lease-ms", str(int(cmd_timeout_s * 1000))]
+
+
 def _target_setup(args, run_dir: Path):
     """--target: the cross-built executable, the QEMU command with the plugins, the delay model."""
     from rvd_pil.qemu import build, plugin, targets, user
@@ -290,6 +299,7 @@ def _main(argv=None) -> int:
         cfg.cpi, cfg.clock_hz = target.cpi.nominal, target.clock_hz  # as the flight clock (_target_setup)
         cfg.hello_timeout_s = max(cfg.hello_timeout_s, 180.0)
         cfg.cmd_timeout_s = max(cfg.cmd_timeout_s, 120.0)  # the profiler slows emulation tenfold
+        flight_args = [*emulated_lease_args(cfg.cmd_timeout_s), *flight_args]
         if delay == "estimated":
             delay_note = (f"control delay: estimated target time = instructions x CPI {target.cpi.nominal:g} "
                           f"(rvd_pil/qemu/targets.toml, {target.cpu}) / {target.clock_hz / 1e6:.0f} MHz")

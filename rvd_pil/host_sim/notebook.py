@@ -126,6 +126,7 @@ def run_scenario(scenario, *, truth: str = "nonlinear", ideal: bool = False, see
     if tgt is not None:
         cfg.cpi, cfg.clock_hz = tgt.cpi.nominal, tgt.clock_hz
         cfg.hello_timeout_s, cfg.cmd_timeout_s = max(cfg.hello_timeout_s, 180.0), max(cfg.cmd_timeout_s, 120.0)
+        flight_args = [*cli.emulated_lease_args(cfg.cmd_timeout_s), *flight_args]
         meta = {"target": tgt.name, "build": tgt.build_name, "cpu": tgt.cpu, "arch": tgt.arch,
                 "clock_hz": tgt.clock_hz, "mode": "user"}
     summary, run_dir = run_pil(
