@@ -16,7 +16,8 @@ Exit status 1 when a mutation survives or does not apply.
 Measured (2 cores shared with other jobs; the copy's first build 26 min, each mutation 2-6 min): all six
 caught. cw_sign: test_guidance_cw, test_guidance_closed_loop (C++), and in Python the STM against expm,
 the phase QP dynamics, the log against the CW plant, the phase figures and the dissertation totals;
-dropped_overshoot_row: test_guidance_phase_qp, test_guidance_safety, the recovery QP against Clarabel;
+dropped_overshoot_row: test_guidance_phase_qp, test_guidance_safety, the recovery QP against Clarabel (measured when
+the row's condition was `keepout_row >= 0` alone; the edit now follows its `&& !holding` and was not re-run since);
 horizon_off_by_one: test_guidance_phase_qp, test_guidance_safety (the closed loop still docks with N - 1);
 thrust_unit: test_guidance_allocation, test_guidance_closed_loop, test_guidance_noalloc and five Python
 closed-loop tests; mib_unit: test_guidance_allocation only, so the closed-loop allocation check was made two-sided:
@@ -59,8 +60,8 @@ MUTATIONS = [
              "flight_sw/guidance/cw.cpp", "P(3, 4) = 2.0 * s;", "P(3, 4) = -2.0 * s;",
              ctest="test_guidance_", pytest=["tests/test_guidance_cw.py", "tests/test_guidance_closed_loop.py"]),
     Mutation("dropped_overshoot_row", "a dropped constraint row: the approach phase's overshoot plane is never filled in",
-             "flight_sw/guidance/phase_qp.cpp", "    if (L.keepout_row >= 0) {  // overshoot plane",
-             "    if (L.keepout_row >= 0 && false) {  // overshoot plane",
+             "flight_sw/guidance/phase_qp.cpp", "    if (L.keepout_row >= 0 && !holding) {  // overshoot plane",
+             "    if (L.keepout_row >= 0 && !holding && false) {  // overshoot plane",
              ctest="test_guidance_", pytest=["tests/test_guidance_qp.py", "tests/test_guidance_closed_loop.py"]),
     Mutation("horizon_off_by_one", "an off-by-one in the horizon: every phase QP is built with N - 1 stages",
              "flight_sw/guidance/phase_qp.cpp", "  N_ = pp.N;", "  N_ = pp.N - 1;",
