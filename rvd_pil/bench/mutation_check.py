@@ -16,8 +16,8 @@ Exit status 1 when a mutation survives or does not apply.
 Measured (2 cores shared with other jobs; the copy's first build 26 min, each mutation 2-6 min): all six
 caught. cw_sign: test_guidance_cw, test_guidance_closed_loop (C++), and in Python the STM against expm,
 the phase QP dynamics, the log against the CW plant, the phase figures and the dissertation totals;
-dropped_overshoot_row: test_guidance_phase_qp, test_guidance_safety, the recovery QP against Clarabel (measured when
-the row's condition was `keepout_row >= 0` alone; the edit now follows its `&& !holding` and was not re-run since);
+dropped_overshoot_row: test_guidance_phase_qp, test_guidance_safety, the recovery QP against Clarabel (again with the
+edit following the row's `&& !holding` condition: `--only dropped_overshoot_row`, 39 s of tests);
 horizon_off_by_one: test_guidance_phase_qp, test_guidance_safety (the closed loop still docks with N - 1);
 thrust_unit: test_guidance_allocation, test_guidance_closed_loop, test_guidance_noalloc and five Python
 closed-loop tests; mib_unit: test_guidance_allocation only, so the closed-loop allocation check was made two-sided:
