@@ -30,6 +30,7 @@ Runs already finished with the same executable and settings are reused: a stoppe
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import sys
@@ -63,6 +64,9 @@ class Spec:
     checks: bool = True
     system_mode: bool = True
     cmd_timeout_s: float = 120.0
+    # The checks' ideal Case 1 ends at this simulated time instead of the scenario's timeout: a law whose
+    # ideal run never docks would otherwise fly it for 12000 s (the check is about identical counts).
+    check_timeout_s: float | None = None
     guidance: str | None = None  # a plug-in guidance law's folder (law.toml): flown instead of the built-in MPC
 
 
@@ -143,7 +147,7 @@ class Campaign:
     # -- one run ---------------------------------------------------------------------------------
     def run(self, run_dir: Path, scenario_label: str, *, fingerprint: str, flight_command=None, runner=(),
             flight_exe=None, flight_args=(), ideal=False, config: ServerConfig | None = None,
-            flight_endpoint=None, meta=None) -> dict:
+            flight_endpoint=None, meta=None, timeout_s: float | None = None) -> dict:
         self.owned.append(str(run_dir.relative_to(self.out)))
         if _finished(run_dir, fingerprint):
             self.say(f"  reuse  {run_dir.relative_to(self.out)}")
@@ -167,7 +171,10 @@ class Campaign:
 
         if flight_exe is None and flight_command is None and not runner:
             flight_exe = self.native_exe
-        summary, _ = run_pil(_scenario(scenario_label), seed=spec.seed, **kw, flight_exe=flight_exe,
+        scn = _scenario(scenario_label)
+        if timeout_s is not None:
+            scn = dataclasses.replace(scn, timeout_s=min(scn.timeout_s, timeout_s))
+        summary, _ = run_pil(scn, seed=spec.seed, **kw, flight_exe=flight_exe,
                              flight_args=[*self.law_args, *flight_args], runner=runner, flight_command=flight_command,
                              flight_endpoint=flight_endpoint, config=cfg, run_dir=run_dir, on_step=progress,
                              meta={"campaign_fingerprint": fingerprint, "scenario_label": scenario_label,
@@ -222,19 +229,22 @@ class Campaign:
         delay_cpi, delay_source = t.cpi.nominal, "registry CPI (rvd_pil/qemu/targets.toml)"
         # 2. ideal Case 1: native once, QEMU user mode twice (first: its CPI sets the timing runs' delay)
         if spec.checks:
-            ideal_meta = {**base, "horizons": DEFAULT_HORIZONS, "kind": "check"}
+            cut = spec.check_timeout_s
+            cut_key = f"cut{cut}" if cut is not None else ""
+            ideal_meta = {**base, "horizons": DEFAULT_HORIZONS, "kind": "check", "check_timeout_s": cut}
             native_dir = self.runs_dir / "native" / "case1-ideal"
-            fp = hashlib.sha256(f"native{_sha(self.native_exe or find_flight_executable())}".encode()).hexdigest()[:16]
-            native = self.run(native_dir, "case1_vbar", fingerprint=fp, ideal=True,
-                              meta={"target": "host", "mode": "native", "kind": "check", "horizons": DEFAULT_HORIZONS})
+            fp = hashlib.sha256(f"native{_sha(self.native_exe or find_flight_executable())}{cut_key}".encode()).hexdigest()[:16]
+            native = self.run(native_dir, "case1_vbar", fingerprint=fp, ideal=True, timeout_s=cut,
+                              meta={"target": "host", "mode": "native", "kind": "check", "horizons": DEFAULT_HORIZONS,
+                                    "check_timeout_s": cut})
             reps = []
             for rep in (1, 2):
                 run_dir = tdir / f"case1-ideal-{rep}"
-                fp = hashlib.sha256(f"{fp_base}ideal{rep}clock{delay_cpi}".encode()).hexdigest()[:16]
+                fp = hashlib.sha256(f"{fp_base}ideal{rep}clock{delay_cpi}{cut_key}".encode()).hexdigest()[:16]
                 # Every byte both sides send repeats in the two runs (run id, link key, both ZenohIDs
                 # and sequence numbers), so the flight's allocations, and with them the addresses
                 # the cache model sees in the solves, are the same in both.
-                reps.append(self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True,
+                reps.append(self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True, timeout_s=cut,
                                      flight_command=user_mode(run_dir, run_dir.with_suffix(".insns"), delay_cpi),
                                      flight_args=["--session-seed", "1"],
                                      config=ServerConfig(run_id="case1-ideal", zenoh_id=HOST_ZENOH_ID,
@@ -303,7 +313,7 @@ class Campaign:
                 initrd = tdir / "initrd.cpio"
                 if not initrd.exists() or initrd.stat().st_mtime < exe.path.stat().st_mtime:
                     system.program_initrd(img, exe.path, initrd)
-                fp = hashlib.sha256(f"{fp_base}system{rep}{img.kernel_version}semihosting".encode()).hexdigest()[:16]
+                fp = hashlib.sha256(f"{fp_base}system{rep}{img.kernel_version}semihosting{cut_key}".encode()).hexdigest()[:16]
 
                 def launch(args, img=img, initrd=initrd):
                     return system.command(t, img, initrd, args, net=False, semihosting=True)
@@ -326,6 +336,7 @@ class Campaign:
         # sent on the host's clock when its link idles, out of the run. The PMU counts the solves'
         # user-mode instructions in the guest, where the plugin cannot.
         return self.run(run_dir, "case1_vbar", fingerprint=fp, ideal=True, flight_command=flight_command,
+                        timeout_s=self.spec.check_timeout_s,
                         meta={**meta, "link": "semihosting"},
                         flight_args=["--pmu-instructions"],
                         config=ServerConfig(run_id="case1-system", zenoh_id=semihosting_link.HOST_ZENOH_ID,
@@ -352,6 +363,9 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
     ap.add_argument("--no-noise", action="store_true")
     ap.add_argument("--no-checks", action="store_true", help="skip the determinism and native-vs-QEMU checks")
     ap.add_argument("--no-system", action="store_true", help="skip QEMU system mode")
+    ap.add_argument("--check-timeout-s", type=float, default=None, metavar="S",
+                    help="end the checks' ideal Case 1 runs (native and twice under QEMU) at S seconds of simulated "
+                         "time: for a law whose ideal run never docks and would fly to the scenario's timeout")
     ap.add_argument("--out", default=str(paths.reports_root() / "pil"),
                     help="campaign directory (default reports/pil in the checkout, or in the current folder)")
     ap.add_argument("--report-only", action="store_true", help="rebuild the report from the runs in --out")
@@ -361,8 +375,10 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
                     help="a plug-in guidance law's folder (law.toml and sources), built for every target and flown "
                          "instead of the built-in MPC")
     a = ap.parse_args(argv)
+    if a.check_timeout_s is not None and not a.check_timeout_s > 0:
+        ap.error(f"--check-timeout-s must be > 0 seconds, got {a.check_timeout_s}")
     spec = Spec(targets=[t for t in a.targets.split(",") if t], cpu=a.cpu, truth=a.truth, noise=not a.no_noise,
-                checks=not a.no_checks, system_mode=not a.no_system,
+                checks=not a.no_checks, system_mode=not a.no_system, check_timeout_s=a.check_timeout_s,
                 guidance=str(Path(a.guidance).resolve()) if a.guidance else None)  # one campaign, however named
     if a.full:
         spec.scenarios = ["case1_vbar", "case2_rbar", "case3_rotating"] + [f"random:{i}" for i in range(1, 21)]
