@@ -179,13 +179,32 @@ def side_by_side(base: Path, laws: list[str]) -> pd.DataFrame:
     return t.sort_values(["target", "_o", "N", "_l"]).drop(columns=["_o", "_l"]).reset_index(drop=True)
 
 
+def checks_table(base: Path, laws: list[str]) -> pd.DataFrame:
+    """Each law's campaign checks (rvd_pil/bench/report.py): identical counts in two QEMU runs, agreement
+    with the native build, block profiler against instruction counter; one row per law, target and check."""
+    from rvd_pil.bench import report
+
+    tables = []
+    for law in [OURS, *laws]:
+        out = base / law
+        if not (out / "campaign.json").exists():
+            continue
+        metas, df = report.load_campaign(out)
+        t = report.checks_table(report.checks(metas, df))
+        if not t.empty:
+            t.insert(0, "law", law)
+            t["result"] = [r.text if hasattr(r, "text") else str(r) for r in t["result"]]
+            tables.append(t)
+    return pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
+
+
 def _f(v, fmt="{:.3g}") -> str:
     if v is None or (isinstance(v, float) and math.isnan(v)):
         return "—"
     return fmt.format(v)
 
 
-def write_page(base: Path, t: pd.DataFrame, laws: list[str], settings: dict) -> Path:
+def write_page(base: Path, t: pd.DataFrame, laws: list[str], settings: dict, chk: pd.DataFrame | None = None) -> Path:
     cols = [("law", "law", "{}"), ("solves", "solves", "{:.0f}"), ("insns_mean", "instructions / solve (mean)", "{:,.0f}"),
             ("insns_max", "max", "{:,.0f}"), ("insns_ratio", "÷ Fast MPC", "{:.3g}"),
             ("target_ms_mean", "est. target ms (mean)", "{:.3f}"), ("target_ms_max", "max", "{:.3f}"),
@@ -214,6 +233,14 @@ def write_page(base: Path, t: pd.DataFrame, laws: list[str], settings: dict) -> 
                 parts.append("<tr>" + "".join(f"<td>{html.escape(_f(r.get(c[0]), c[2]) if c[0] != 'law' else str(r['law']))}</td>"
                                               for c in cols) + "</tr>")
             parts.append("</table>")
+    if chk is not None and not chk.empty:
+        parts.append("<h2>Checks of every law's campaign</h2><p>The ideal Case 1 (CW truth, no noise, impulsive) "
+                     "flown natively and twice under QEMU per target: the instructions and the cycle model's cycles of "
+                     "every step must repeat exactly.</p><table><tr>" +
+                     "".join(f"<th>{html.escape(c)}</th>" for c in chk.columns) + "</tr>")
+        for _, r in chk.iterrows():
+            parts.append("<tr>" + "".join(f"<td>{html.escape(str(r[c]))}</td>" for c in chk.columns) + "</tr>")
+        parts.append("</table>")
     style = ("<style>body{font-family:sans-serif;margin:2em;max-width:1600px}table{border-collapse:collapse;margin-bottom:1em}"
              "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right;font-size:90%}th{background:#eee}"
              "td:first-child{text-align:left}</style>")
@@ -282,9 +309,14 @@ def main(argv=None) -> int:
                         f"horizon sets {', '.join('/'.join(map(str, h)) for h in horizon_sets)} (rendezvous/approach/docking)."}
     t.to_csv(base / "peers.csv", index=False)
     (base / "peers.json").write_text(json.dumps({"settings": settings, "rows": json.loads(t.to_json(orient="records"))}, indent=1))
-    page = write_page(base, t, laws, settings)
+    chk = checks_table(base, laws)
+    if not chk.empty:
+        chk.to_csv(base / "peers-checks.csv", index=False)
+    page = write_page(base, t, laws, settings, chk)
     for line in summary_lines(t):
         print(line)
+    for _, r in chk[chk["result"] != "PASS"].iterrows() if not chk.empty else ():
+        print(f"check {r['result']}: {r['law']} {r['target']}: {r['what was checked']}: {r['figure']}")
     print(f"report: {page}")
     return 0
 
