@@ -43,8 +43,12 @@ def test_the_report_judges_cut_checks_on_reaching_the_cut():
         assert not t["what was checked"].str.contains("docked$").any()
 
 
-def test_a_cut_must_be_positive():
-    with pytest.raises(SystemExit):
-        campaign.parse_args(["--check-timeout-s", "0"])
-    spec = campaign.parse_args(["--check-timeout-s", "3000"])[0]
-    assert spec.check_timeout_s == 3000.0
+def test_the_cut_defaults_to_plugin_laws_only():
+    assert campaign.parse_args([])[0].check_timeout_s is None  # our MPC: the whole run
+    law = ["--guidance", "examples/guidance/cw_target"]
+    assert campaign.parse_args(law)[0].check_timeout_s == campaign.PLUGIN_CHECK_TIMEOUT_S
+    assert campaign.parse_args([*law, "--check-timeout-s", "0"])[0].check_timeout_s is None
+    assert campaign.parse_args(["--check-timeout-s", "1500"])[0].check_timeout_s == 1500.0
+    for bad in ("-1", "nan"):
+        with pytest.raises(SystemExit):
+            campaign.parse_args(["--check-timeout-s", bad])

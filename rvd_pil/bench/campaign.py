@@ -48,6 +48,11 @@ from rvd_pil.qemu.semihosting_link import HOST_ZENOH_ID
 # (rendezvous 15/30/45, approach 5/15/30, docking 5/12/30) in three runs per scenario.
 HORIZON_SETS = ((15, 5, 5), (30, 15, 12), (45, 30, 30))
 DEFAULT_HORIZONS = (30, 15, 12)
+# A plug-in law's checks stop the ideal Case 1 here (simulated seconds) unless told otherwise: a law
+# whose ideal run never leaves the rendezvous (the QOCOGEN peer: its QPs with large multipliers fail,
+# examples/guidance/README.md) flies it to the 12000 s timeout, 400 steps of up to 3.4 s of emulation
+# each; 3000 s is a hundred rendezvous steps (Ts 30 s), enough to compare two runs' counts step by step.
+PLUGIN_CHECK_TIMEOUT_S = 3000.0
 
 
 @dataclass
@@ -365,7 +370,8 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
     ap.add_argument("--no-system", action="store_true", help="skip QEMU system mode")
     ap.add_argument("--check-timeout-s", type=float, default=None, metavar="S",
                     help="end the checks' ideal Case 1 runs (native and twice under QEMU) at S seconds of simulated "
-                         "time: for a law whose ideal run never docks and would fly to the scenario's timeout")
+                         f"time (default: {PLUGIN_CHECK_TIMEOUT_S:g} s for a --guidance law, whose ideal run may never "
+                         "dock, the whole run for the built-in MPC; 0: the whole run)")
     ap.add_argument("--out", default=str(paths.reports_root() / "pil"),
                     help="campaign directory (default reports/pil in the checkout, or in the current folder)")
     ap.add_argument("--report-only", action="store_true", help="rebuild the report from the runs in --out")
@@ -375,10 +381,11 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
                     help="a plug-in guidance law's folder (law.toml and sources), built for every target and flown "
                          "instead of the built-in MPC")
     a = ap.parse_args(argv)
-    if a.check_timeout_s is not None and not a.check_timeout_s > 0:
-        ap.error(f"--check-timeout-s must be > 0 seconds, got {a.check_timeout_s}")
+    if a.check_timeout_s is not None and not a.check_timeout_s >= 0:
+        ap.error(f"--check-timeout-s must be >= 0 seconds (0: the whole run), got {a.check_timeout_s}")
+    check_cut = (PLUGIN_CHECK_TIMEOUT_S if a.guidance else None) if a.check_timeout_s is None else (a.check_timeout_s or None)
     spec = Spec(targets=[t for t in a.targets.split(",") if t], cpu=a.cpu, truth=a.truth, noise=not a.no_noise,
-                checks=not a.no_checks, system_mode=not a.no_system, check_timeout_s=a.check_timeout_s,
+                checks=not a.no_checks, system_mode=not a.no_system, check_timeout_s=check_cut,
                 guidance=str(Path(a.guidance).resolve()) if a.guidance else None)  # one campaign, however named
     if a.full:
         spec.scenarios = ["case1_vbar", "case2_rbar", "case3_rotating"] + [f"random:{i}" for i in range(1, 21)]
