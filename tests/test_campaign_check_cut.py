@@ -52,3 +52,8 @@ def test_the_cut_defaults_to_plugin_laws_only():
     for bad in ("-1", "nan"):
         with pytest.raises(SystemExit):
             campaign.parse_args(["--check-timeout-s", bad])
+    assert campaign.parse_args(["--flight-time-s", "90"])[0].flight_time_s == 90.0
+    assert campaign.parse_args([])[0].flight_time_s is None
+    for bad in ("0", "-5", "nan"):
+        with pytest.raises(SystemExit):
+            campaign.parse_args(["--flight-time-s", bad])

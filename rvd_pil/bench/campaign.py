@@ -72,6 +72,9 @@ class Spec:
     # The checks' ideal Case 1 ends at this simulated time instead of the scenario's timeout: a law whose
     # ideal run never docks would otherwise fly it for 12000 s (the check is about identical counts).
     check_timeout_s: float | None = None
+    # Every timing run ends at this simulated time (None: the scenario's timeout): for a law too slow to
+    # fly whole scenarios under emulation, measured on their beginning.
+    flight_time_s: float | None = None
     guidance: str | None = None  # a plug-in guidance law's folder (law.toml): flown instead of the built-in MPC
 
 
@@ -280,12 +283,14 @@ class Campaign:
                 hlabel = "N" + "-".join(map(str, horizons)) if horizon_set else "Nscenario"
                 run_dir = tdir / f"{Path(label).stem if label.endswith('.toml') else label.replace(':', '')}-{hlabel}"
                 cache = reference is None
-                fp = hashlib.sha256(f"{fp_base}{label}{horizons}{delay_cpi}{cache}".encode()).hexdigest()[:16]
+                flight_cut = f"cut{spec.flight_time_s}" if spec.flight_time_s is not None else ""
+                fp = hashlib.sha256(f"{fp_base}{label}{horizons}{delay_cpi}{cache}{flight_cut}".encode()).hexdigest()[:16]
                 cfg = ServerConfig(delay_model="estimated", cpi=delay_cpi, clock_hz=t.clock_hz)
-                self.run(run_dir, label, fingerprint=fp,
+                self.run(run_dir, label, fingerprint=fp, timeout_s=spec.flight_time_s,
                          flight_command=user_mode(run_dir, run_dir.with_suffix(".insns"), delay_cpi, cache=cache),
                          flight_args=["--horizon", ",".join(map(str, horizons))] if horizon_set else [], config=cfg,
                          meta={**base, "mode": "user", "horizons": horizons, "kind": "timing",
+                               "flight_time_s": spec.flight_time_s,
                                "delay_cpi": delay_cpi, "delay_cpi_source": delay_source,
                                "flight_clock": {"cpi": delay_cpi, "clock_hz": t.clock_hz, "cpi_source": delay_source},
                                "memory_term": "cache model" if cache else
@@ -368,6 +373,9 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
     ap.add_argument("--no-noise", action="store_true")
     ap.add_argument("--no-checks", action="store_true", help="skip the determinism and native-vs-QEMU checks")
     ap.add_argument("--no-system", action="store_true", help="skip QEMU system mode")
+    ap.add_argument("--flight-time-s", type=float, default=None, metavar="S",
+                    help="end every timing run at S seconds of simulated time (default: the scenario's timeout): "
+                         "a law too slow to fly whole scenarios under emulation, measured on their beginning")
     ap.add_argument("--check-timeout-s", type=float, default=None, metavar="S",
                     help="end the checks' ideal Case 1 runs (native and twice under QEMU) at S seconds of simulated "
                          f"time (default: {PLUGIN_CHECK_TIMEOUT_S:g} s for a --guidance law, whose ideal run may never "
@@ -381,11 +389,14 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
                     help="a plug-in guidance law's folder (law.toml and sources), built for every target and flown "
                          "instead of the built-in MPC")
     a = ap.parse_args(argv)
+    if a.flight_time_s is not None and not a.flight_time_s > 0:
+        ap.error(f"--flight-time-s must be > 0 seconds, got {a.flight_time_s}")
     if a.check_timeout_s is not None and not a.check_timeout_s >= 0:
         ap.error(f"--check-timeout-s must be >= 0 seconds (0: the whole run), got {a.check_timeout_s}")
     check_cut = (PLUGIN_CHECK_TIMEOUT_S if a.guidance else None) if a.check_timeout_s is None else (a.check_timeout_s or None)
     spec = Spec(targets=[t for t in a.targets.split(",") if t], cpu=a.cpu, truth=a.truth, noise=not a.no_noise,
                 checks=not a.no_checks, system_mode=not a.no_system, check_timeout_s=check_cut,
+                flight_time_s=a.flight_time_s,
                 guidance=str(Path(a.guidance).resolve()) if a.guidance else None)  # one campaign, however named
     if a.full:
         spec.scenarios = ["case1_vbar", "case2_rbar", "case3_rotating"] + [f"random:{i}" for i in range(1, 21)]
@@ -399,8 +410,9 @@ def parse_args(argv=None) -> tuple[Spec, Path, bool]:
 
 
 def _spec_key(spec: dict) -> dict:
-    """The settings that make two campaigns the same campaign (JSON round trip: tuples become lists)."""
-    return json.loads(json.dumps(spec))
+    """The settings that make two campaigns the same campaign (JSON round trip: tuples become lists;
+    a setting left unset is the same as one a campaign of an older version did not have)."""
+    return {k: v for k, v in json.loads(json.dumps(spec)).items() if v is not None}
 
 
 def claim(out: Path, spec: Spec, replace: bool = False) -> None:
