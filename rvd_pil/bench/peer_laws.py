@@ -123,10 +123,21 @@ def law_table(law: str, out: Path) -> pd.DataFrame:
     if rows.empty:
         return pd.DataFrame()
     stats = report.stats_table(rows)
-    dv = []
+    dv, changes = [], []
     for m in metas:
         if m.get("kind") != "timing":
             continue
+        run = out / m["dir"]
+        if (run / "law_values.csv").exists():  # our MPC's active-set method reports its row changes by name
+            vals = pd.read_csv(run / "law_values.csv")
+            vals = vals[vals["name"] == "active_set_changes"]
+            if not vals.empty:
+                steps = pd.read_csv(run / "steps.csv", usecols=["step", "phase"])
+                for ph, g in vals.merge(steps, on="step").groupby("phase"):
+                    if int(ph) in (1, 2, 3):
+                        changes.append({"target": m["target"], "phase": ("rendezvous", "approach", "docking")[int(ph) - 1],
+                                        "N": int(m["horizons"][int(ph) - 1]), "as_mean": g["value"].mean(),
+                                        "as_max": g["value"].max()})
         for i, phase in enumerate(("rendezvous", "approach", "docking")):
             dv.append({"target": m["target"], "phase": phase, "N": int(m["horizons"][i]), "run": m["dir"],
                        "dv_phase_mps": (m.get("dv_per_phase_mps") or {}).get(phase, math.nan),
@@ -143,6 +154,10 @@ def law_table(law: str, out: Path) -> pd.DataFrame:
                                                                               as_index=False)["failed"].sum()
     fails = fails.rename(columns={"phase_name": "phase", "failed": "safe_actions"})
     t = stats.merge(dv, on=["target", "phase", "N"], how="left").merge(fails, on=["target", "phase", "N"], how="left")
+    if changes:
+        ch = pd.DataFrame(changes).groupby(["target", "phase", "N"], as_index=False).agg(
+            active_set_changes_mean=("as_mean", "mean"), active_set_changes_max=("as_max", "max"))
+        t = t.merge(ch, on=["target", "phase", "N"], how="left")
     t.insert(0, "law", law)
     return t
 
@@ -199,6 +214,44 @@ def checks_table(base: Path, laws: list[str]) -> pd.DataFrame:
     return pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
 
 
+def plot_instructions(base: Path, t: pd.DataFrame, laws: list[str]) -> Path:
+    """Instructions per solve per phase and horizon, one bar per law, one panel per target (log scale:
+    the laws span five decades)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    targets = list(dict.fromkeys(t["target"]))
+    order = [OURS, *laws]
+    fig, axes = plt.subplots(len(targets), 1, figsize=(12, 3.6 * len(targets)), squeeze=False)
+    for ax, target in zip(axes[:, 0], targets):
+        g = t[t["target"] == target]
+        groups = list(dict.fromkeys(zip(g["phase"], g["N"])))
+        width = 0.8 / len(order)
+        for i, law in enumerate(order):
+            h = g[g["law"] == law].set_index(["phase", "N"])
+            y = [h.loc[k, "insns_mean"] if k in h.index else np.nan for k in groups]
+            if all(np.isnan(y)):
+                continue
+            cut = h["flight_time_s"].max() if "flight_time_s" in h else np.nan
+            label = law + (f" (first {cut:g} s)" if cut == cut else "")
+            ax.bar(np.arange(len(groups)) + (i - (len(order) - 1) / 2) * width, y, width, label=label)
+        ax.set_yscale("log")
+        ax.set_ylim(top=ax.get_ylim()[1] * 30)  # room for the legend above the tallest bars
+        ax.set_xticks(np.arange(len(groups)), [f"{ph}\nN = {n}" for ph, n in groups], fontsize=8)
+        ax.set_ylabel("instructions per step (mean)")
+        ax.set_title(f"{target}: the guidance step under QEMU (filter + law), per phase and horizon", fontsize=10)
+        ax.grid(axis="y", which="both", alpha=0.3)
+        ax.legend(fontsize=7, ncol=len(order))
+    fig.tight_layout()
+    path = base / "peers-instructions.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _law_cell(r) -> str:
     cut = r.get("flight_time_s")
     return str(r["law"]) + (f" (first {cut:g} s only)" if cut is not None and not math.isnan(cut) else "")
@@ -215,7 +268,8 @@ def write_page(base: Path, t: pd.DataFrame, laws: list[str], settings: dict, chk
             ("insns_max", "max", "{:,.0f}"), ("insns_ratio", "÷ Fast MPC", "{:.3g}"),
             ("target_ms_mean", "est. target ms (mean)", "{:.3f}"), ("target_ms_max", "max", "{:.3f}"),
             ("time_ratio", "÷ Fast MPC", "{:.3g}"), ("iterations_mean", "iterations (mean)", "{:.1f}"),
-            ("iterations_max", "max", "{:.0f}"), ("du_max_mps", "max |Δu₀ − ours| [m/s]", "{:.1e}"),
+            ("iterations_max", "max", "{:.0f}"), ("active_set_changes_mean", "active-set changes (mean)", "{:.1f}"),
+            ("active_set_changes_max", "max", "{:.0f}"), ("du_max_mps", "max |Δu₀ − ours| [m/s]", "{:.1e}"),
             ("dobj_rel_max", "max |ΔJ|/|J|", "{:.1e}"), ("viol_max", "max violation", "{:.1e}"),
             ("safe_actions", "safe actions", "{:.0f}"), ("dv_phase_mps", "Δv phase [m/s]", "{:.3f}"),
             ("dv_phase_ratio", "÷ Fast MPC", "{:.3g}"), ("dv_total_mps", "Δv run [m/s]", "{:.3f}"),
@@ -227,11 +281,16 @@ def write_page(base: Path, t: pd.DataFrame, laws: list[str], settings: dict, chk
              "our MPC's own QPs): native runs of the same scenarios with law.shadow = 1, every QP of the closed loop "
              "also solved by our Fast MPC at its reference settings (tol 1e-10); the LQ + command governor solves "
              "another, much smaller problem and cw_target (CW targeting and a glideslope) none at all (their rows are "
-             "repeated under each horizon; they have none). Δv: the mean over "
+             "repeated under each horizon; they have none). Iterations: interior-point iterations (QOCOGEN, our "
+             "rendezvous), ADMM iterations (OSQP), the governor's; our approach and docking QPs are solved by a dual "
+             "active-set method, whose work is its row changes (rows entering or leaving the active set). Δv: the mean over "
              "the scenarios of the closed loop's realised Δv in that phase (and the whole run), flown with that "
              "horizon set. Safe actions: steps where the law commanded zero thrust because its solver did not "
              "report solved (or the harness did). A law marked 'first S s only' flew only that much of each scenario "
              "(too slow to fly it whole under emulation): its Δv is that of those seconds.</p>"]
+    if (base / "peers-instructions.png").exists():
+        parts.append("<img src='peers-instructions.png' alt='instructions per step, per law, phase and horizon' "
+                     "style='max-width:100%'>")
     for target, g in t.groupby("target", sort=False):
         parts.append(f"<h2>{html.escape(str(target))}</h2>")
         for (phase, N), h in g.groupby(["phase", "N"], sort=False):
@@ -319,6 +378,7 @@ def main(argv=None) -> int:
     chk = checks_table(base, laws)
     if not chk.empty:
         chk.to_csv(base / "peers-checks.csv", index=False)
+    plot_instructions(base, t, laws)
     page = write_page(base, t, laws, settings, chk)
     for line in summary_lines(t):
         print(line)

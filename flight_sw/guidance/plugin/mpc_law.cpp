@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <exception>
 #include <memory>
 #include <new>
@@ -15,6 +16,16 @@ namespace rvd::guidance {
 namespace {
 
 double finite_or(double v, double fallback) { return std::isfinite(v) ? v : fallback; }
+
+// One telemetry value, its name a literal that fits (a copy, not a formatted print: it is inside the
+// counted step). Dropped when the table is full.
+template <std::size_t L>
+void put_named(rvd_guidance_output* out, const char (&name)[L], double value) {
+  static_assert(L <= RVD_NAME_SIZE, "telemetry name too long");
+  if (out->n_named >= RVD_MAX_NAMED) return;
+  std::memcpy(out->named[out->n_named].name, name, L);
+  out->named[out->n_named++].value = value;
+}
 
 uint8_t solver_status_code(const Command& c) {
   if (c.solver.status == solver::Status::TimeLimit) return static_cast<uint8_t>(c.solver.status);  // even unsolved
@@ -107,13 +118,14 @@ int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_outp
   out->primal_residual = c.solved ? finite_or(c.solver.primal_residual, -1.0) : -1.0;
   out->dual_residual = c.solved ? finite_or(c.solver.dual_residual, -1.0) : -1.0;
   out->objective = c.solved ? finite_or(c.solver.objective, 0.0) : 0.0;
+  if (c.solved && c.solver.active_set_changes > 0) {  // the active-set method ran: its work, as iterations are the IPM's
+    put_named(out, "active_set_changes", c.solver.active_set_changes);
+  }
   if (g.holding().active()) {  // the record's law_values: the holding radius this step planned with
-    std::snprintf(out->named[out->n_named].name, RVD_NAME_SIZE, "holding_radius_m");
-    out->named[out->n_named++].value = g.holding().radius();
+    put_named(out, "holding_radius_m", g.holding().radius());
   }
   if (std::isfinite(in.chaser_attitude_error_rad)) {
-    std::snprintf(out->named[out->n_named].name, RVD_NAME_SIZE, "attitude_error_deg");
-    out->named[out->n_named++].value = in.chaser_attitude_error_rad * 180.0 / 3.14159265358979323846;
+    put_named(out, "attitude_error_deg", in.chaser_attitude_error_rad * 180.0 / 3.14159265358979323846);
   }
   const ObstacleSet& held = g.obstacles();
   out->obstacles_capacity = static_cast<uint32_t>(std::max(g.params().obstacle_capacity, 0));
