@@ -9,6 +9,7 @@
 // predictor, the corrector and the refinement steps.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #ifdef RVD_SOLVER_TRACE  // -DRVD_SOLVER_TRACE prints one line per interior-point iteration to stderr
 #include <cstdio>
 #endif
@@ -19,6 +20,7 @@
 namespace rvd::solver {
 
 using detail::kInf;
+constexpr double kTiny = std::numeric_limits<double>::min();  // a reciprocal's floor (1/0 would give 0 * inf)
 using detail::Step;
 using detail::Workspace;
 
@@ -33,31 +35,29 @@ bool factorize_regularised(Workspace& w, const OcpQp& qp, const detail::Kernels&
 
 // Row and soft-slack steps from the primal step (dx, du): dsig, dt, dlam, dmu by the elimination.
 // Returns the largest step keeping t, lam, s, mu nonnegative (unbounded when nothing blocks).
+// The soft rows (few) add their slack step first; then one pass without branches over every row:
+// dsig is 0 on hard rows (zeroed per solve) and a constant row's terms are all 0, so its steps are
+// too. The step bound is kept as its reciprocal max(-dv / v) = max(-dv * (1/v)), from the
+// reciprocals of the iteration: no division per row and back-solve.
 double recover_row_steps(Workspace& w, Step& s) {
-  double amax = kInf;
-  for (int i = 0; i <= w.N; ++i) detail::g_mul(w, i, s.du + w.uo[i], s.dx + i * w.nx, s.dt);  // G dz (dx_0 = 0)
-  for (int k = 0; k < w.rows; ++k) {
-    if (w.act[k] == 0.0) {
-      s.dt[k] = s.dlam[k] = s.dsig[k] = s.dmu[k] = 0.0;
-      continue;
-    }
-    const double gdz = s.dt[k];
-    double dsig = 0.0;
-    if (w.soft[k] > 0.0) {
-      dsig = (w.w[k] * gdz + w.asoft[k]) * w.inv_h[k];
-      s.dmu[k] = (-w.rcs[k] - w.mu[k] * dsig) * w.inv_s[k];
-    } else {
-      s.dmu[k] = 0.0;
-    }
+  detail::g_mul_step(w, s.du, s.dx, s.dt);  // G dz
+  double inv_amax = 0.0;
+  for (int j = 0; j < w.n_soft; ++j) {
+    const int k = w.soft_list[j];
+    const double dsig = (w.w[k] * s.dt[k] + w.asoft[k]) * w.inv_h[k];
+    const double dmu = (-w.rcs[k] - w.mu[k] * dsig) * w.inv_s[k];
     s.dsig[k] = dsig;
-    s.dt[k] = -w.rin[k] - gdz + dsig;
-    s.dlam[k] = (-w.rc[k] - w.lam[k] * s.dt[k]) * w.inv_t[k];
-    if (s.dt[k] < 0.0) amax = std::min(amax, -w.t[k] / s.dt[k]);
-    if (s.dlam[k] < 0.0) amax = std::min(amax, -w.lam[k] / s.dlam[k]);
-    if (dsig < 0.0) amax = std::min(amax, -w.sig[k] / dsig);
-    if (s.dmu[k] < 0.0) amax = std::min(amax, -w.mu[k] / s.dmu[k]);
+    s.dmu[k] = dmu;
+    inv_amax = std::max(inv_amax, std::max(-dsig * w.inv_s[k], -dmu * w.inv_mu[k]));
   }
-  return amax;
+  for (int k = 0; k < w.rows; ++k) {
+    const double dt = -w.rin[k] - s.dt[k] + s.dsig[k];
+    const double dlam = (-w.rc[k] - w.lam[k] * dt) * w.inv_t[k];
+    s.dt[k] = dt;
+    s.dlam[k] = dlam;
+    inv_amax = std::max(inv_amax, std::max(-dt * w.inv_t[k], -dlam * w.inv_lam[k]));
+  }
+  return 1.0 / inv_amax;  // inf when nothing blocks
 }
 
 // NaN/Inf anywhere in the step shows in the sum of its entries.
@@ -77,6 +77,19 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
   const Settings& S = settings_;
   const int N = w.N, nx = w.nx, M = w.rows;
   const double tol = S.tol;
+  // Per solve: the rows of the step by kind (kkt.hpp), and the active soft rows, so the per-row
+  // passes treat every row as a hard one and add the soft rows' terms in a second, short pass
+  // (soft-slack steps stay 0 on the other rows in every step buffer).
+  detail::prepare_step_rows(w);
+  w.n_soft = 0;
+  for (int r = 0; r < M; ++r)
+    if (w.act[r] > 0.0 && w.soft[r] > 0.0) w.soft_list[w.n_soft++] = r;
+  for (Step* s : {&w.step, &w.spare, &w.corr}) {
+    std::fill(s->dsig, s->dsig + M, 0.0);
+    std::fill(s->dmu, s->dmu + M, 0.0);
+  }
+  std::fill(w.dsig_aff, w.dsig_aff + M, 0.0);
+  std::fill(w.dmu_aff, w.dmu_aff + M, 0.0);
   // Starting point. Cold: zero inputs, states rolled out through the dynamics. Warm: the previous
   // (shifted) plan. Row slacks and duals are pushed into the interior.
   auto start = [&](bool from_plan) {
@@ -143,28 +156,29 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
     double pres = detail::max_abs(w.rdyn, N * nx), dres = 0.0, gap = 0.0;
     // One pass over the rows: residuals, gap, and (for the step below) the Newton weights and the
-    // predictor's complementarity targets rc = t lam, rcs = s mu.
+    // predictor's complementarity targets rc = t lam, rcs = s mu; every row as a hard one (no
+    // branch), then the soft rows' terms. Constant rows (act = 0) get zeros: t = 1, lam = 0.
     for (int r = 0; r < M; ++r) {
-      w.rin[r] = (w.gz[r] - w.sig[r] + w.t[r] - w.dv[r]) * w.act[r];
+      const double t = w.t[r], lam = w.lam[r], act = w.act[r];
+      w.rin[r] = (w.gz[r] - w.sig[r] + t - w.dv[r]) * act;
       pres = std::max(pres, std::abs(w.rin[r]));
-      w.rc[r] = w.act[r] * w.t[r] * w.lam[r];
+      w.rc[r] = act * t * lam;
       gap += w.rc[r];
-      w.inv_t[r] = 1.0 / w.t[r];
-      const double wr = w.act[r] * w.lam[r] * w.inv_t[r];
-      w.w[r] = wr;
-      if (w.soft[r] > 0.0) {
-        w.rsig[r] = w.Zs[r] * w.sig[r] + w.zs[r] - w.lam[r] - w.mu[r];
-        dres = std::max(dres, std::abs(w.rsig[r]));
-        w.rcs[r] = w.sig[r] * w.mu[r];
-        gap += w.rcs[r];
-        w.inv_s[r] = 1.0 / w.sig[r];
-        const double nu = w.mu[r] * w.inv_s[r];
-        w.inv_h[r] = 1.0 / (w.Zs[r] + wr + nu);
-        w.weff[r] = wr * (w.Zs[r] + nu) * w.inv_h[r];
-      } else {
-        w.rsig[r] = w.rcs[r] = 0.0;
-        w.weff[r] = wr;
-      }
+      w.inv_t[r] = 1.0 / t;
+      w.inv_lam[r] = act / std::max(lam, kTiny);  // for the step bound; 0 on constant rows
+      w.w[r] = w.weff[r] = act * lam * w.inv_t[r];
+    }
+    for (int j = 0; j < w.n_soft; ++j) {
+      const int r = w.soft_list[j];
+      w.rsig[r] = w.Zs[r] * w.sig[r] + w.zs[r] - w.lam[r] - w.mu[r];
+      dres = std::max(dres, std::abs(w.rsig[r]));
+      w.rcs[r] = w.sig[r] * w.mu[r];
+      gap += w.rcs[r];
+      w.inv_s[r] = 1.0 / w.sig[r];
+      w.inv_mu[r] = 1.0 / std::max(w.mu[r], kTiny);
+      const double nu = w.mu[r] * w.inv_s[r];
+      w.inv_h[r] = 1.0 / (w.Zs[r] + w.w[r] + nu);
+      w.weff[r] = w.w[r] * (w.Zs[r] + nu) * w.inv_h[r];
     }
     dres = std::max({dres, detail::max_abs(w.rdu, w.inputs), detail::max_abs(w.rdx + nx, N * nx)});
     const double mu = n_comp > 0 ? gap / n_comp : 0.0;
@@ -207,23 +221,17 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     // direction(): the step for the complementarity targets rc (rows) and rcs (soft slacks): the
     // step aims at t lam = t lam - rc, s mu = s mu - rcs. Returns the largest feasible step length.
     auto direction = [&](bool refine) {
-      for (int r = 0; r < M; ++r) {
-        if (w.act[r] == 0.0) {
-          w.vrow[r] = 0.0;
-          continue;
-        }
-        const double a1 = (w.lam[r] * w.rin[r] - w.rc[r]) * w.inv_t[r];
-        if (w.soft[r] > 0.0) {
-          const double a = a1 - w.rcs[r] * w.inv_s[r] - w.rsig[r];
-          w.asoft[r] = a;
-          w.vrow[r] = a1 - w.w[r] * w.inv_h[r] * a;
-        } else {
-          w.vrow[r] = a1;
-        }
+      // Row term of the step QP; a constant row's is 0 (lam = rin = rc = 0).
+      for (int r = 0; r < M; ++r) w.vrow[r] = (w.lam[r] * w.rin[r] - w.rc[r]) * w.inv_t[r];
+      for (int j = 0; j < w.n_soft; ++j) {
+        const int r = w.soft_list[j];
+        const double a = w.vrow[r] - w.rcs[r] * w.inv_s[r] - w.rsig[r];
+        w.asoft[r] = a;
+        w.vrow[r] -= w.w[r] * w.inv_h[r] * a;
       }
       std::copy(w.rdu, w.rdu + w.inputs, w.gu);
       std::copy(w.rdx, w.rdx + (N + 1) * nx, w.gx);
-      for (int i = 0; i <= N; ++i) detail::gt_mul_add(w, i, w.vrow, w.gu + w.uo[i], i > 0 ? w.gx + i * nx : nullptr);
+      detail::gt_mul_add_step(w, w.vrow, w.gu, w.gx);
       K.back_solve(w, qp, w.rdyn, w.step);
       ++info_.back_solves;
       double amax = recover_row_steps(w, w.step);
@@ -239,10 +247,13 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     };
     const double amax_aff = std::min(1.0, direction(false));
     double gap_aff = 0.0;
-    for (int r = 0; r < M; ++r) {
+    {
       const Step& s = w.step;
-      gap_aff += w.act[r] * (w.t[r] + amax_aff * s.dt[r]) * (w.lam[r] + amax_aff * s.dlam[r]);
-      if (w.soft[r] > 0.0) gap_aff += (w.sig[r] + amax_aff * s.dsig[r]) * (w.mu[r] + amax_aff * s.dmu[r]);
+      for (int r = 0; r < M; ++r) gap_aff += w.act[r] * (w.t[r] + amax_aff * s.dt[r]) * (w.lam[r] + amax_aff * s.dlam[r]);
+      for (int j = 0; j < w.n_soft; ++j) {
+        const int r = w.soft_list[j];
+        gap_aff += (w.sig[r] + amax_aff * s.dsig[r]) * (w.mu[r] + amax_aff * s.dmu[r]);
+      }
     }
     // Keep the predictor's row steps: swap them into the *_aff buffers (no copy).
     std::swap(w.step.dt, w.dt_aff);
@@ -253,9 +264,11 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     const double sigma = std::clamp(ratio * ratio * ratio, 0.0, 1.0);
     const double smu = std::max(sigma * mu, mu_floor);
     auto centred_targets = [&](bool second_order) {
-      for (int r = 0; r < M; ++r) {
+      for (int r = 0; r < M; ++r)
         w.rc[r] = w.act[r] * (w.t[r] * w.lam[r] + (second_order ? w.dt_aff[r] * w.dlam_aff[r] : 0.0) - smu);
-        w.rcs[r] = w.soft[r] * (w.sig[r] * w.mu[r] + (second_order ? w.dsig_aff[r] * w.dmu_aff[r] : 0.0) - smu);
+      for (int j = 0; j < w.n_soft; ++j) {  // (rcs is read on soft rows only)
+        const int r = w.soft_list[j];
+        w.rcs[r] = w.sig[r] * w.mu[r] + (second_order ? w.dsig_aff[r] * w.dmu_aff[r] : 0.0) - smu;
       }
     };
     centred_targets(true);
@@ -277,10 +290,11 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
       std::swap(w.step, w.spare);  // the current step to the spare, rc/rcs keep their targets
       const Step& s0 = w.spare;
       auto push = [&](double prod) { return std::max(std::min(std::max(prod, 0.1 * smu), 10.0 * smu) - prod, -10.0 * smu); };
-      for (int r = 0; r < M; ++r) {
-        if (w.act[r] == 0.0) continue;
-        w.rc[r] -= push((w.t[r] + atrial * s0.dt[r]) * (w.lam[r] + atrial * s0.dlam[r]));
-        if (w.soft[r] > 0.0) w.rcs[r] -= push((w.sig[r] + atrial * s0.dsig[r]) * (w.mu[r] + atrial * s0.dmu[r]));
+      for (int r = 0; r < M; ++r)
+        if (w.act[r] != 0.0) w.rc[r] -= push((w.t[r] + atrial * s0.dt[r]) * (w.lam[r] + atrial * s0.dlam[r]));
+      for (int j = 0; j < w.n_soft; ++j) {
+        const int r = w.soft_list[j];
+        w.rcs[r] -= push((w.sig[r] + atrial * s0.dsig[r]) * (w.mu[r] + atrial * s0.dmu[r]));
       }
       const double a2 = direction(refine);
       if (a2 >= 1.01 * amax) {
@@ -319,6 +333,9 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     for (int r = 0; r < M; ++r) {
       w.t[r] += alpha * s.dt[r];
       w.lam[r] += alpha * s.dlam[r];
+    }
+    for (int j = 0; j < w.n_soft; ++j) {  // (dsig = dmu = 0 on hard rows)
+      const int r = w.soft_list[j];
       w.sig[r] += alpha * s.dsig[r];
       w.mu[r] += alpha * s.dmu[r];
     }

@@ -69,6 +69,41 @@ inline void g_mul_all(const Workspace& w, const double* u, const double* x, doub
   for (int i = 0; i <= w.N; ++i) g_mul(w, i, u + w.uo[i], x + i * w.nx, out);
 }
 
+// The rows of a Newton step, split by kind: one nonzero on an input (the input boxes), one on a
+// state, the others; with indices into the whole u / x vectors, so the interior point's per-step
+// products (G dz, G'v: several per iteration) cost one multiply per bound row and no per-stage
+// loop. Stage 0's state nonzeros are dropped (dx_0 = 0; its C'v is not wanted). Built per solve.
+void prepare_step_rows(Workspace& w);
+// out = G dz over all rows (a step: dx_0 = 0).
+inline void g_mul_step(const Workspace& w, const double* du, const double* dx, double* out) {
+  const StepRows& s = w.srows;
+  for (int j = 0; j < s.n_bu; ++j) out[s.bu_row[j]] = s.bu_val[j] * du[s.bu_idx[j]];
+  for (int j = 0; j < s.n_bx; ++j) out[s.bx_row[j]] = s.bx_val[j] * dx[s.bx_idx[j]];
+  for (int j = 0; j < s.n_gen; ++j) {
+    const int k = s.gen_row[j];
+    const double* u = du + s.gen_uo[j];
+    const double* x = dx + s.gen_xo[j];
+    double acc = 0.0;
+    for (int a = w.ptr[k]; a < w.mid[k]; ++a) acc += w.val[a] * u[w.col[a]];
+    for (int a = w.mid[k]; a < s.gen_end[j]; ++a) acc += w.val[a] * x[w.col[a]];
+    out[k] = acc;
+  }
+}
+// gu += D'v, gx += C'v over all rows (stage 0: inputs only).
+inline void gt_mul_add_step(const Workspace& w, const double* v, double* gu, double* gx) {
+  const StepRows& s = w.srows;
+  for (int j = 0; j < s.n_bu; ++j) gu[s.bu_idx[j]] += s.bu_val[j] * v[s.bu_row[j]];
+  for (int j = 0; j < s.n_bx; ++j) gx[s.bx_idx[j]] += s.bx_val[j] * v[s.bx_row[j]];
+  for (int j = 0; j < s.n_gen; ++j) {
+    const int k = s.gen_row[j];
+    const double vk = v[k];
+    double* u = gu + s.gen_uo[j];
+    double* x = gx + s.gen_xo[j];
+    for (int a = w.ptr[k]; a < w.mid[k]; ++a) u[w.col[a]] += w.val[a] * vk;
+    for (int a = w.mid[k]; a < s.gen_end[j]; ++a) x[w.col[a]] += w.val[a] * vk;
+  }
+}
+
 // No NaN or Inf among v[0..n): the exponent bits, no branch per entry (Eigen's allFinite costs a
 // call and an early exit per block: most of the input check on small QPs).
 inline bool all_finite(const double* v, long n) {

@@ -85,10 +85,13 @@ void lower_t_solve(const L& Lm, int m, V&& v) {  // v <- L^-T v
 
 template <int NX, int NU>
 struct StageKernels {
+  // The sizes, compile-time constants in the fixed instances (so the hand-written loops below unroll).
+  static int dim_x(const Workspace& w) { return NX == Eigen::Dynamic ? w.nx : NX; }
+  static int dim_u(const Workspace& w, int i) { return NU == Eigen::Dynamic ? w.nu[i] : NU; }
   // H u for the stage's R (diagonal when flagged); out = r + R u.
   template <class Out>
   static void grad_u(const Workspace& w, const OcpQp& qp, int i, const double* u, Out& out) {
-    const int m = w.nu[i];
+    const int m = dim_u(w, i);
     const MapCV<NU> ui(u, m);
     out = MapCV<NU>(qp.r[i].data(), m);
     if (w.r_diag[i])
@@ -98,7 +101,7 @@ struct StageKernels {
   }
   template <class Out>
   static void grad_x(const Workspace& w, const OcpQp& qp, int i, const double* x, Out& out) {
-    const int n = w.nx;
+    const int n = dim_x(w);
     const MapCV<NX> xi(x, n);
     out = MapCV<NX>(qp.q[i].data(), n);
     if (w.q_diag[i])
@@ -110,7 +113,7 @@ struct StageKernels {
   template <class Out>
   static void dynamics(const Workspace& w, const OcpQp& qp, int i, const double* x, const double* u, Out& out,
                        double* scratch) {
-    const int n = w.nx, m = w.nu[i];
+    const int n = dim_x(w), m = dim_u(w, i);
     const MapCM<NX, NX> A(qp.A[i].data(), n, n);
     if (w.b_tail[i]) {
       MapV<NX> xs(scratch, n);
@@ -126,7 +129,7 @@ struct StageKernels {
   template <class Out>
   static void dyn_transpose_add(const Workspace& w, const OcpQp& qp, int i, const double* v, double* out_x,
                                 Out&& out_u, bool want_x) {
-    const int n = w.nx, m = w.nu[i];
+    const int n = dim_x(w), m = dim_u(w, i);
     const MapCM<NX, NX> A(qp.A[i].data(), n, n);
     const MapCV<NX> vi(v, n);
     if (w.b_tail[i]) {
@@ -142,7 +145,7 @@ struct StageKernels {
 
   static void residuals(Workspace& w, const OcpQp& qp, int i, const double* x, const double* u, const double* pi,
                         const double* lam, double& gscale) {
-    const int n = w.nx, m = w.nu[i], N = w.N;
+    const int n = dim_x(w), m = dim_u(w, i), N = w.N;
     const double* xi = x + i * n;
     const double* ui = u + w.uo[i];
     MapV<NU> rdu(w.rdu + w.uo[i], m);
@@ -167,56 +170,57 @@ struct StageKernels {
   }
 
   static bool factor(Workspace& w, const OcpQp& qp, int i, double reg) {
-    const int n = w.nx, m = w.nu[i], N = w.N;
+    const int n = dim_x(w), m = dim_u(w, i), N = w.N;
     MapM<NU, NU> Muu(w.L + w.lo[i], m, m);
     MapM<NU, NX> Mux(w.Y + w.uo[i] * n, m, n);
     MapM<NX, NX> Mxx(w.P + i * n * n, n, n);
-    if (m > 0) {
-      if (w.r_diag[i]) {
-        Muu.setZero();
-        Muu.diagonal() = qp.R[i].diagonal();
-      } else {
-        Muu = MapCM<NU, NU>(qp.R[i].data(), m, m);
-      }
-      Mux.setZero();
-    }
-    if (i > 0) {
-      if (w.q_diag[i]) {
-        Mxx.setZero();
-        Mxx.diagonal() = qp.Q[i].diagonal();
-      } else {
-        Mxx = MapCM<NX, NX>(qp.Q[i].data(), n, n);
-      }
-    }
-    if (i < N) {
+    // The cost-to-go's terms are written (not added to zeroed blocks), then Q and R added.
+    if (i < N && i > 0) {
       const MapCM<NX, NX> P1(w.P + (i + 1) * n * n, n, n);
       const MapCM<NX, NX> A(qp.A[i].data(), n, n);
-      if (i > 0) {
-        MapM<NX, NX> PA(w.s_xx, n, n);
-        PA.noalias() = P1.lazyProduct(A);
-        MapM<NX, NX> F(w.s_xx2, n, n);
-        // A'PA (symmetric: the lower triangle, mirrored); B'PB and B'PA are its blocks when B = A [0; I].
-        for (int c = 0; c < n; ++c)
-          for (int r = c; r < n; ++r) F(r, c) = F(c, r) = A.col(r).dot(PA.col(c));
-        Mxx += F;
-        if (m > 0) {
-          if (w.b_tail[i]) {
-            Muu += F.bottomRightCorner(m, m);
-            Mux += F.bottomRows(m);
-          } else {
-            const MapCM<NX, NU> B(qp.B[i].data(), n, m);
-            MapM<NX, NU> PB(w.s_ux, n, m);
-            PB.noalias() = P1.lazyProduct(B);
-            Muu.noalias() += B.transpose().lazyProduct(PB);
-            Mux.noalias() += B.transpose().lazyProduct(PA);
-          }
+      MapM<NX, NX> PA(w.s_xx, n, n);
+      PA.noalias() = P1.lazyProduct(A);
+      // A'PA (symmetric: the lower triangle, mirrored); B'PB and B'PA are its blocks when B = A [0; I].
+      for (int c = 0; c < n; ++c)
+        for (int r = c; r < n; ++r) Mxx(r, c) = Mxx(c, r) = A.col(r).dot(PA.col(c));
+      if (m > 0) {
+        if (w.b_tail[i]) {
+          Muu = Mxx.bottomRightCorner(m, m);
+          Mux = Mxx.bottomRows(m);
+        } else {
+          const MapCM<NX, NU> B(qp.B[i].data(), n, m);
+          MapM<NX, NU> PB(w.s_ux, n, m);
+          PB.noalias() = P1.lazyProduct(B);
+          Muu.noalias() = B.transpose().lazyProduct(PB);
+          Mux.noalias() = B.transpose().lazyProduct(PA);
         }
-      } else if (m > 0) {  // stage 0: x0 is fixed, only the input block matters
-        const MapCM<NX, NU> B(qp.B[i].data(), n, m);
-        MapM<NX, NU> PB(w.s_ux, n, m);
-        PB.noalias() = P1.lazyProduct(B);
-        Muu.noalias() += B.transpose().lazyProduct(PB);
       }
+    } else {
+      if (i > 0) Mxx.setZero();
+      if (m > 0) {
+        Mux.setZero();
+        if (i < N) {  // stage 0: x0 is fixed, only the input block matters
+          const MapCM<NX, NX> P1(w.P + (i + 1) * n * n, n, n);
+          const MapCM<NX, NU> B(qp.B[i].data(), n, m);
+          MapM<NX, NU> PB(w.s_ux, n, m);
+          PB.noalias() = P1.lazyProduct(B);
+          Muu.noalias() = B.transpose().lazyProduct(PB);
+        } else {
+          Muu.setZero();
+        }
+      }
+    }
+    if (m > 0) {
+      if (w.r_diag[i])
+        Muu.diagonal() += qp.R[i].diagonal();
+      else
+        Muu += MapCM<NU, NU>(qp.R[i].data(), m, m);
+    }
+    if (i > 0) {
+      if (w.q_diag[i])
+        Mxx.diagonal() += qp.Q[i].diagonal();
+      else
+        Mxx += MapCM<NX, NX>(qp.Q[i].data(), n, n);
     }
     // G'WG over the nonzeros (stage 0: only the input block).
     for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
@@ -259,7 +263,7 @@ struct StageKernels {
   }
 
   static void backward(Workspace& w, const OcpQp& qp, int i, const double* c) {
-    const int n = w.nx, m = w.nu[i], N = w.N;
+    const int n = dim_x(w), m = dim_u(w, i), N = w.N;
     MapV<NU> l(w.l + w.uo[i], m);
     if (m > 0) l = MapCV<NU>(w.gu + w.uo[i], m);
     MapV<NX> p(w.p + i * n, n);
@@ -276,7 +280,7 @@ struct StageKernels {
     }
   }
   static void forward(Workspace& w, const OcpQp& qp, int i, const double* c, Step& s) {
-    const int n = w.nx, m = w.nu[i], N = w.N;
+    const int n = dim_x(w), m = dim_u(w, i), N = w.N;
     MapV<NU> du(s.du + w.uo[i], m);
     if (m > 0) {
       du = MapCV<NU>(w.l + w.uo[i], m);
@@ -293,7 +297,7 @@ struct StageKernels {
     }
   }
   static double cost(const Workspace& w, const OcpQp& qp, int i, const double* x, const double* u) {
-    const int n = w.nx, m = w.nu[i];
+    const int n = dim_x(w), m = dim_u(w, i);
     double f = 0.0;
     MapV<NX> g(w.tn, n);
     grad_x(w, qp, i, x + i * n, g);  // q + Q x: f = (q + (q + Q x))' x / 2
@@ -307,7 +311,7 @@ struct StageKernels {
   }
   // Stationarity and dynamics residual of the unreduced system at step s, into gu/gx and edyn.
   static void step_error(Workspace& w, const OcpQp& qp, int i, const Step& s, double& ed, double& ep) {
-    const int n = w.nx, m = w.nu[i], N = w.N;
+    const int n = dim_x(w), m = dim_u(w, i), N = w.N;
     MapV<NU> gu(w.gu + w.uo[i], m);
     if (m > 0) {
       grad_u(w, qp, i, s.du + w.uo[i], gu);
@@ -411,6 +415,22 @@ const Kernels kKernels = {&Solver<NX, NU>::residuals, &Solver<NX, NU>::factorize
 const Kernels& kernels_for(const Workspace& w) {
   if (w.fixed_kernels) return kKernels<6, 3>;
   return kKernels<Eigen::Dynamic, Eigen::Dynamic>;
+}
+
+void prepare_step_rows(Workspace& w) {
+  StepRows& s = w.srows;
+  s.n_bu = s.n_bx = s.n_gen = 0;
+  for (int i = 0; i <= w.N; ++i)
+    for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
+      const int b0 = w.ptr[k], bm = w.mid[k], be = i == 0 ? bm : w.ptr[k + 1];
+      if (be - b0 == 1 && bm - b0 == 1) {
+        s.bu_row[s.n_bu] = k, s.bu_idx[s.n_bu] = w.uo[i] + w.col[b0], s.bu_val[s.n_bu++] = w.val[b0];
+      } else if (be - b0 == 1) {
+        s.bx_row[s.n_bx] = k, s.bx_idx[s.n_bx] = i * w.nx + w.col[b0], s.bx_val[s.n_bx++] = w.val[b0];
+      } else {
+        s.gen_row[s.n_gen] = k, s.gen_uo[s.n_gen] = w.uo[i], s.gen_xo[s.n_gen] = i * w.nx, s.gen_end[s.n_gen++] = be;
+      }
+    }
 }
 
 bool prepare_rows(Workspace& w, const OcpQp& qp, double tol) {

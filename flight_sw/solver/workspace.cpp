@@ -49,12 +49,18 @@ void Workspace::carve(Arena& a) {
   col = a.take<int>(M * (nu_max + nx));
   val = a.take<double>(M * (nu_max + nx));
   ub_row = a.take<int>(U);
+  soft_list = a.take<int>(M);
+  for (int** v : {&srows.bu_row, &srows.bu_idx, &srows.bx_row, &srows.bx_idx, &srows.gen_row, &srows.gen_uo,
+                  &srows.gen_xo, &srows.gen_end})
+    *v = a.take<int>(M);
+  srows.bu_val = a.take<double>(M);
+  srows.bx_val = a.take<double>(M);
   lb_row = a.take<int>(U);
   x = a.take<double>(X);
   u = a.take<double>(U);
   pi = a.take<double>(D);
   for (double** v : {&t, &lam, &sig, &mu, &dv, &zs, &Zs, &rin, &rsig, &gz, &w, &weff, &hs, &rc, &rcs, &vrow, &dt_aff,
-                     &dlam_aff, &dsig_aff, &dmu_aff, &sigt, &inv_t, &inv_s, &inv_h, &asoft})
+                     &dlam_aff, &dsig_aff, &dmu_aff, &sigt, &inv_t, &inv_s, &inv_h, &asoft, &inv_lam, &inv_mu})
     *v = a.take<double>(M);
   rdx = a.take<double>(X);
   rdu = a.take<double>(U);

@@ -43,6 +43,16 @@ struct Step {
   double *dt, *dlam, *dsig, *dmu;  // row slacks, row duals, soft slacks, their duals
 };
 
+// The rows of a Newton step by kind (detail::prepare_step_rows): bound rows on an input (bu) and
+// on a state (bx) as (row, index in u / x, value); the others (gen) as row, offsets of their
+// stage in u and x and the end of the nonzeros used (stage 0: its inputs' only).
+struct StepRows {
+  int n_bu = 0, n_bx = 0, n_gen = 0;
+  int *bu_row, *bu_idx, *bx_row, *bx_idx;
+  double *bu_val, *bx_val;
+  int *gen_row, *gen_uo, *gen_xo, *gen_end;
+};
+
 struct Workspace {
   int N = 0, nx = 0, nu_max = 0, rows = 0, inputs = 0;
   bool fixed_kernels = false;  // nx = 6, nu = 3 on stages 0..N-1, nu_N in {0, 3}
@@ -70,6 +80,10 @@ struct Workspace {
   // complementarity targets (rows, soft slacks) and the step QP's row term.
   double *w, *weff, *hs, *rc, *rcs, *vrow;
   double *inv_t, *inv_s, *inv_h, *asoft;  // per iteration: 1/t, 1/s, 1/h; the soft rows' eliminated right-hand side
+  double *inv_lam, *inv_mu;               // per iteration: 1/lam (0 on constant rows), 1/mu (soft rows): step bounds
+  int* soft_list;                         // per solve (interior point): the active soft rows, n_soft of them
+  int n_soft = 0;
+  StepRows srows;                         // per solve (interior point)
   // Step QP gradient.
   double *gx, *gu;
   // Riccati factors: cost-to-go P (nx x nx per stage), Cholesky L of the input block, Y = L^-1 S,
