@@ -380,7 +380,9 @@ def main(argv=None) -> int:
     worst = defaultdict(float)     # (phase, N, solver) -> worst relative objective difference
     count = defaultdict(int)
     used = defaultdict(int)        # which reference solved how many QPs
-    for qp in qps:
+    for i, qp in enumerate(qps):
+        if i and i % 20 == 0:  # a long run says where it is (stderr: the figures stay on stdout)
+            print(f"  ... {i} of {len(qps)} QPs, {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
         key = (qp.phase or "set", qp.N)
         forms = prepare(qp)
         ref, who = reference(qp, forms)
