@@ -428,7 +428,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
   Workspace& w = *work_;
   ActiveSet& a = *dense_;
   if (!a.condensed) return solve_converged(qp, false, settings_.max_iter, 0.0, settings_.warm_push);
-  const int N = a.N, nx = a.nx, n = a.n, cap = a.cap;
+  const int nx = a.nx, n = a.n, cap = a.cap;
   double* Mw = a.Mw.data();
   double* Kl = a.Kl.data();
   constexpr double inf = std::numeric_limits<double>::infinity();
