@@ -27,6 +27,10 @@ def test_a_cut_check_run_is_the_full_runs_beginning(tmp_path):
     assert len(cols) > 4
     for col in cols:
         assert (a[col].to_numpy() == b[col].to_numpy()).all(), col
+    # the same run asked for with a cut is another run: flown again, not the whole one reused
+    again = camp.run(tmp_path / "runs" / "full", "case1_vbar", fingerprint="full", ideal=True, flight_exe=exe,
+                     timeout_s=600.0)
+    assert again["end"] == "timeout" and again["steps"] == cut["steps"]
 
 
 def test_the_report_judges_cut_checks_on_reaching_the_cut():

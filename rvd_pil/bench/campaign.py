@@ -157,6 +157,8 @@ class Campaign:
             flight_exe=None, flight_args=(), ideal=False, config: ServerConfig | None = None,
             flight_endpoint=None, meta=None, timeout_s: float | None = None) -> dict:
         self.owned.append(str(run_dir.relative_to(self.out)))
+        if timeout_s is not None:  # a run cut short is another run than the whole one
+            fingerprint = hashlib.sha256(f"{fingerprint}cut{timeout_s}".encode()).hexdigest()[:16]
         if _finished(run_dir, fingerprint):
             self.say(f"  reuse  {run_dir.relative_to(self.out)}")
             return json.loads((run_dir / "meta.json").read_text())
@@ -238,17 +240,16 @@ class Campaign:
         # 2. ideal Case 1: native once, QEMU user mode twice (first: its CPI sets the timing runs' delay)
         if spec.checks:
             cut = spec.check_timeout_s
-            cut_key = f"cut{cut}" if cut is not None else ""
             ideal_meta = {**base, "horizons": DEFAULT_HORIZONS, "kind": "check", "check_timeout_s": cut}
             native_dir = self.runs_dir / "native" / "case1-ideal"
-            fp = hashlib.sha256(f"native{_sha(self.native_exe or find_flight_executable())}{cut_key}".encode()).hexdigest()[:16]
+            fp = hashlib.sha256(f"native{_sha(self.native_exe or find_flight_executable())}".encode()).hexdigest()[:16]
             native = self.run(native_dir, "case1_vbar", fingerprint=fp, ideal=True, timeout_s=cut,
                               meta={"target": "host", "mode": "native", "kind": "check", "horizons": DEFAULT_HORIZONS,
                                     "check_timeout_s": cut})
             reps = []
             for rep in (1, 2):
                 run_dir = tdir / f"case1-ideal-{rep}"
-                fp = hashlib.sha256(f"{fp_base}ideal{rep}clock{delay_cpi}{cut_key}".encode()).hexdigest()[:16]
+                fp = hashlib.sha256(f"{fp_base}ideal{rep}clock{delay_cpi}".encode()).hexdigest()[:16]
                 # Every byte both sides send repeats in the two runs (run id, link key, both ZenohIDs
                 # and sequence numbers), so the flight's allocations, and with them the addresses
                 # the cache model sees in the solves, are the same in both.
@@ -283,8 +284,7 @@ class Campaign:
                 hlabel = "N" + "-".join(map(str, horizons)) if horizon_set else "Nscenario"
                 run_dir = tdir / f"{Path(label).stem if label.endswith('.toml') else label.replace(':', '')}-{hlabel}"
                 cache = reference is None
-                flight_cut = f"cut{spec.flight_time_s}" if spec.flight_time_s is not None else ""
-                fp = hashlib.sha256(f"{fp_base}{label}{horizons}{delay_cpi}{cache}{flight_cut}".encode()).hexdigest()[:16]
+                fp = hashlib.sha256(f"{fp_base}{label}{horizons}{delay_cpi}{cache}".encode()).hexdigest()[:16]
                 cfg = ServerConfig(delay_model="estimated", cpi=delay_cpi, clock_hz=t.clock_hz)
                 self.run(run_dir, label, fingerprint=fp, timeout_s=spec.flight_time_s,
                          flight_command=user_mode(run_dir, run_dir.with_suffix(".insns"), delay_cpi, cache=cache),
@@ -323,7 +323,7 @@ class Campaign:
                 initrd = tdir / "initrd.cpio"
                 if not initrd.exists() or initrd.stat().st_mtime < exe.path.stat().st_mtime:
                     system.program_initrd(img, exe.path, initrd)
-                fp = hashlib.sha256(f"{fp_base}system{rep}{img.kernel_version}semihosting{cut_key}".encode()).hexdigest()[:16]
+                fp = hashlib.sha256(f"{fp_base}system{rep}{img.kernel_version}semihosting".encode()).hexdigest()[:16]
 
                 def launch(args, img=img, initrd=initrd):
                     return system.command(t, img, initrd, args, net=False, semihosting=True)

@@ -127,18 +127,17 @@ def law_table(law: str, out: Path) -> pd.DataFrame:
     for m in metas:
         if m.get("kind") != "timing":
             continue
-        run = out / m["dir"]
-        if (run / "law_values.csv").exists():  # our MPC's active-set method reports its row changes by name
-            vals = pd.read_csv(run / "law_values.csv")
+        values = out / m["dir"] / "law_values.csv"
+        if values.exists():  # our MPC's active-set method reports its row changes by name
+            vals = pd.read_csv(values)
             vals = vals[vals["name"] == "active_set_changes"]
-            if not vals.empty:
-                steps = pd.read_csv(run / "steps.csv", usecols=["step", "phase"])
-                for ph, g in vals.merge(steps, on="step").groupby("phase"):
-                    if int(ph) in (1, 2, 3):
-                        changes.append({"target": m["target"], "phase": ("rendezvous", "approach", "docking")[int(ph) - 1],
-                                        "N": int(m["horizons"][int(ph) - 1]), "as_mean": g["value"].mean(),
-                                        "as_max": g["value"].max()})
-        for i, phase in enumerate(("rendezvous", "approach", "docking")):
+            phases = df.loc[df["run"] == m["dir"], ["step", "phase"]]
+            for ph, g in vals.merge(phases, on="step").groupby("phase"):
+                if int(ph) in report.PHASES:
+                    changes.append({"target": m["target"], "phase": report.PHASES[int(ph)],
+                                    "N": int(m["horizons"][int(ph) - 1]), "as_mean": g["value"].mean(),
+                                    "as_max": g["value"].max()})
+        for i, phase in enumerate(report.PHASES.values()):
             dv.append({"target": m["target"], "phase": phase, "N": int(m["horizons"][i]), "run": m["dir"],
                        "dv_phase_mps": (m.get("dv_per_phase_mps") or {}).get(phase, math.nan),
                        "dv_total_mps": m.get("dv_total_mps"), "docked": bool(m.get("docked")),
