@@ -4,6 +4,8 @@ infeasible through the dynamics and input limits by a reach row (an LP finds the
 whose soft cone rows are violated at the optimum (a linear penalty below the rows' multipliers), and
 closed-loop QPs of the guidance. Every solve is checked to have been answered by the active-set
 method (rows changed, no interior-point iteration), so these tests see that path and no other."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -170,3 +172,55 @@ def test_one_solver_along_a_closed_loop(closed_loop_qps):
             continue
         assert by_active_set(res)
         agrees(qp, res, reference(qp))
+
+
+def unreachable_row_in_place(qp: OcpQpData) -> OcpQpData:
+    """The QP with its last stage's first hard row replaced by one 1 m beyond the farthest radial
+    position any plan reaches there (same shape: the same solver takes it)."""
+    N, e0 = qp.N, np.eye(qp.nx)[0]
+    j = int(np.flatnonzero(qp.hard_rows(N))[0])
+    C, D, d = list(qp.C), list(qp.D), list(qp.d)
+    C[N], D[N], d[N] = qp.C[N].copy(), np.zeros_like(qp.D[N]), qp.d[N].copy()
+    C[N][j], d[N][j] = -e0, 1e9  # loose while the reach is measured
+    loose = dataclasses.replace(qp, C=C, D=D, d=d)
+    reach_row = with_reach_row(loose, stage=N, direction=e0, margin=1.0)
+    d = list(d)
+    d[N] = d[N].copy()
+    d[N][j] = reach_row.d[N][-1]
+    return dataclasses.replace(loose, d=d)
+
+
+@pytest.mark.parametrize("phase", [2, 3])
+def test_warm_start_along_a_closed_loop(closed_loop_qps, phase):
+    """One warm-started solver fed a phase's QPs in flight order, shifted between periods as the
+    guidance shifts it: it starts from the last working set, so it needs fewer row changes than
+    the same solver cold, and every answer is still the optimum of the QP given. Then the warm
+    start is made wrong on purpose (the QPs in reverse order, an infeasible QP in between, a
+    reset): the answers stay the optimum, and the infeasible QP is called infeasible."""
+    qps = closed_loop_qps[phase]
+    first = qps[0]
+    warm = flight_sw.OcpSolver(first.nx, first.nu, first.nc, first.ns if first.idxs else None, warm_start=True)
+    cold = flight_sw.OcpSolver(first.nx, first.nu, first.nc, first.ns if first.idxs else None, warm_start=False)
+    changes = {"warm": 0, "cold": 0}
+    for k, qp in enumerate(qps):
+        for name, solver in (("warm", warm), ("cold", cold)):
+            res = solver.solve(*qp.args(), **qp.kw())
+            assert by_active_set(res)
+            changes[name] += res.active_set_changes
+            if k % 3 == 0 or name == "warm":
+                agrees(qp, res, reference(qp))
+            solver.shift_warm_start()
+    assert changes["warm"] <= 0.6 * changes["cold"], changes  # 0.55 (approach) and 0.20 (docking) here
+    infeasible = unreachable_row_in_place(qps[len(qps) // 2])
+    for qp in list(reversed(qps[-6:])) + [infeasible] + qps[:3]:
+        res = warm.solve(*qp.args(), **qp.kw())
+        ref = reference(qp)
+        if qp is infeasible:
+            assert res.status == ref.status == "infeasible", (res.status, ref.status)
+        else:
+            assert by_active_set(res)
+            agrees(qp, res, ref)
+        warm.shift_warm_start()
+    warm.reset_warm_start()
+    res = warm.solve(*qps[0].args(), **qps[0].kw())
+    agrees(qps[0], res, reference(qps[0]))

@@ -196,7 +196,7 @@ bool Guidance::solve_into_plan(PhaseQp& qp, solver::FastMpcSolver& sol, const Ve
 void Guidance::look_ahead(const solver::FastMpcSolver& rendezvous, const TargetState& target,
                           const EstimateQuality& quality, double budget_left_us, bool carried, solver::Info& info) {
   solver::FastMpcSolver& sol = *solvers_[index(Phase::Approach)];
-  if (sol.uses_active_set()) return;  // its solves start cold: nothing to prepare
+  if (sol.uses_active_set()) return;  // the look-ahead prepares the interior point's iterate only
   const int steps = std::min(params_.approach_lookahead_steps, qps_[index(Phase::Rendezvous)]->N());
   int entry = 0;
   TargetState later = target;

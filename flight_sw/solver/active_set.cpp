@@ -150,6 +150,7 @@ ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
   e.assign(cap, 0.0), lam.assign(cap, 0.0), lam_star.assign(cap, 0.0), dir.assign(cap, 0.0);
   slot_row.assign(cap, -1);
   state.assign(rows, 0);
+  warm_state.assign(rows, 0);
   ub.assign(rows, 0.0);
   co.assign(N + 2, 0), doff.assign(N + 2, 0), so.assign(N + 2, 0);
   for (int i = 0; i <= N; ++i) {
@@ -355,6 +356,25 @@ bool ActiveSet::condense(const OcpQp& qp) {
   return true;
 }
 
+void ActiveSet::shift_warm_state(const Workspace& w) {
+  for (int i = 0; i < N; ++i) {
+    const int a0 = w.ro[i], b0 = w.ro[i + 1];
+    if (w.nc[i] == w.nc[i + 1]) {
+      std::copy(warm_state.begin() + b0, warm_state.begin() + w.ro[i + 2], warm_state.begin() + a0);
+      continue;
+    }
+    int j = 0;
+    for (; j < std::min(w.nc[i], w.nc[i + 1]); ++j) {
+      const int a = a0 + j, b = b0 + j;
+      if (w.mid[a] - w.ptr[a] != w.mid[b] - w.ptr[b] || w.ptr[a + 1] - w.mid[a] != w.ptr[b + 1] - w.mid[b] ||
+          w.soft[a] != w.soft[b] || w.act[a] != w.act[b])
+        break;
+      warm_state[a] = warm_state[b];
+    }
+    std::fill(warm_state.begin() + a0 + j, warm_state.begin() + b0, 0);
+  }
+}
+
 }  // namespace detail
 
 using detail::ActiveSet;
@@ -424,9 +444,11 @@ bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
   return ok;
 }
 
-Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
+Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   Workspace& w = *work_;
   ActiveSet& a = *dense_;
+  warm = warm && a.warm_valid;
+  a.warm_valid = false;
   if (!a.condensed) return solve_converged(qp, false, settings_.max_iter, 0.0, settings_.warm_push);
   const int nx = a.nx, n = a.n, cap = a.cap;
   double* Mw = a.Mw.data();
@@ -545,9 +567,53 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
     return enter;
   };
 
+  // Column p of the Gram factor for the pending row m (in Mw's column p): true when m is
+  // independent of W's rows, with the new diagonal entry written; false when it is (numerically)
+  // a combination of them, Kl's column p then holding Kl^-1 M_W'm.
+  auto gram_append = [&](const double* m) {
+    double* Kp = Kl + static_cast<size_t>(p) * cap;
+    double mm = dotn(m, m), ll = 0.0;
+    for (int s = 0; s < p; ++s) {
+      const double* Ks = Kl + static_cast<size_t>(s) * cap;
+      Kp[s] = (dotn(Mw + static_cast<size_t>(s) * n, m) - detail::dot(Ks, Kp, s)) / Ks[s];
+      ll += Kp[s] * Kp[s];
+    }
+    const double dd = mm - ll;
+    if (!(dd > 1e-10 * mm)) return false;
+    Kp[p] = std::sqrt(dd);
+    return true;
+  };
+
   Status st = Status::MaxIter;
   int it = 0;
   bool need_primal = true;
+  // Warm start: the last solution's rows at their upper bound go there again, and its working set
+  // is taken in (each row independent of the ones before it) with zero multipliers. Any
+  // multipliers within their bounds are a feasible point of the dual, so the method starts from
+  // there: the first pass moves them towards the dual minimiser on W and drops the rows whose
+  // multiplier would leave its bounds, one change each. Near the docking port most rows of the
+  // last solution stay active, so this saves rebuilding the working set one violated row at a time.
+  if (warm) {
+    for (int k : a.active_rows)
+      if (a.warm_state[k] == 2 && a.ub[k] > 0.0 && a.ub[k] < inf) {
+        double* m = Mw + static_cast<size_t>(p) * n;
+        condense_row(k, p);
+        set_state(k, 2);
+        shift_c(m, a.ub[k]);
+      }
+    for (int k : a.active_rows) {
+      if (a.warm_state[k] != 1 || a.ub[k] == 0.0 || p >= n) continue;
+      double* m = Mw + static_cast<size_t>(p) * n;
+      const double h = condense_row(k, p);
+      if (!gram_append(m)) continue;
+      a.slot_row[p] = k;
+      a.e[p] = h + dotn(m, a.c.data());
+      a.lam[p] = 0.0;
+      set_state(k, 1);
+      ++p;
+    }
+    need_primal = p == 0;
+  }
   while (it < max_iter) {
     if (need_primal) {
       primal();
@@ -585,15 +651,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
       // Append to the Gram factor, or move along the null space while it would be singular.
       for (;;) {
         double* Kp = Kl + static_cast<size_t>(p) * cap;
-        double mm = dotn(m, m), ll = 0.0;
-        for (int s = 0; s < p; ++s) {
-          const double* Ks = Kl + static_cast<size_t>(s) * cap;
-          Kp[s] = (dotn(Mw + static_cast<size_t>(s) * n, m) - detail::dot(Ks, Kp, s)) / Ks[s];
-          ll += Kp[s] * Kp[s];
-        }
-        const double dd = mm - ll;
-        if (dd > 1e-10 * mm) {
-          Kp[p] = std::sqrt(dd);
+        if (gram_append(m)) {
           ++p;
           break;
         }
@@ -678,6 +736,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp) {
     return ipm;
   }
   if (st != Status::Solved) return st;
+  std::copy(a.state.begin(), a.state.end(), a.warm_state.begin());
+  a.warm_valid = true;
   // Multipliers per row, soft slacks and their duals, and the dynamics multipliers by the adjoint
   // recursion pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i (the residuals' conventions).
   detail::g_mul(w, 0, w.u, w.x, w.gz);  // the constant rows' G z too (stage 0: C x0; later stages: 0)

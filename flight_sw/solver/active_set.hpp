@@ -42,6 +42,10 @@ struct ActiveSet {
   std::vector<int> slot_row;
   std::vector<signed char> state;  // per row: 0 multiplier 0, 1 in W, 2 at its upper bound (soft row, zs)
   std::vector<double> ub;          // per row: multiplier bound (zs on soft rows, inf on hard rows; kept with the rows)
+  // Warm start: the rows' states at the last solve's solution (1 in W, 2 at the upper bound),
+  // shifted one stage with the plan; valid after a solve this method finished.
+  std::vector<signed char> warm_state;
+  bool warm_valid = false;
 
   // Rows (per stage): the C, D, idxs, zs, Zs whose compression the workspace holds, at offsets
   // co[i], doff[i], so[i]; valid when rows_valid (another row preparation clears it).
@@ -72,6 +76,10 @@ struct ActiveSet {
   void keep_rows(const Workspace& w, const OcpQp& qp);
   // H = Gamma'Qbar Gamma + Rbar and its Cholesky factor; false when H is not positive definite.
   bool condense(const OcpQp& qp);
+  // The warm state one stage on (FastMpcSolver::shift_warm_start): stage i takes stage i + 1's
+  // rows where the two stages have as many rows, else the leading rows that read alike (the same
+  // kind of row: as many input and state nonzeros, both hard or both soft); stage N keeps its own.
+  void shift_warm_state(const Workspace& w);
 };
 
 }  // namespace rvd::solver::detail

@@ -110,7 +110,7 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
         xN.noalias() += qp.B[N - 1].lazyProduct(Eigen::Map<const Vector>(w.u + w.uo[N - 1], w.nu[N - 1]));
       }
       shifted_ = false;
-      st = active_set_applies()               ? solve_active_set(qp)
+      st = active_set_applies()               ? solve_active_set(qp, warm)
            : settings_.mode == Mode::Converged ? solve_converged(qp, warm, settings_.max_iter, 0.0, settings_.warm_push)
                                                : solve_barrier(qp, warm);
     }
@@ -154,6 +154,7 @@ void FastMpcSolver::shift_warm_start() {
   if (!work_ || !has_warm_) return;
   shifted_ = true;
   Workspace& w = *work_;
+  if (dense_ && dense_->warm_valid) dense_->shift_warm_state(w);
   const int N = w.N, n = w.nx;
   for (int i = 0; i < N; ++i) {
     std::copy(w.x + (i + 1) * n, w.x + (i + 2) * n, w.x + i * n);

@@ -67,7 +67,8 @@ class FastMpcSolver {
   void shift_warm_start();  // shift the last solution one stage: the warm start for the next period
   void reset_warm_start();  // forget the previous solution: the next solve starts cold
   // Converged-mode solves go to the dual active-set method (unless a soft row has a quadratic
-  // penalty): Settings::active_set_max_inputs. Its solves start cold (no use for a warm start).
+  // penalty): Settings::active_set_max_inputs. Warm, it starts from the last solution's working set,
+  // shifted one stage.
   bool uses_active_set() const;
   const OcpQpDims& dims() const { return dims_; }
   Settings& settings() { return settings_; }
@@ -82,7 +83,7 @@ class FastMpcSolver {
   bool infeasibility_certificate(const OcpQp& qp);  // true when the dual iterate proves infeasibility
   bool time_up() const;
   bool active_set_applies() const;           // Settings::active_set_max_inputs, soft rows linear only
-  Status solve_active_set(const OcpQp& qp);  // active_set.cpp
+  Status solve_active_set(const OcpQp& qp, bool warm);  // active_set.cpp
 
  private:
   bool inputs_ok(const OcpQp& qp, const Vector& x0, detail::ActiveSet* kept = nullptr) const;
