@@ -548,22 +548,24 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     else
       detail::AnyStage::rollout(a, qp, w.x, w.u, w.tm);
   };
-  // G z of the active rows (a box row: one product), then the most violated row in row order (the
-  // first of equals): lam = 0 and g'z > d, or a soft row at lam = zs with g'z < d.
+  // The most violated row, from each active row's G z (a box row: one product) in one pass per
+  // kind of row: lam = 0 and g'z > d, or a soft row at lam = zs with g'z < d; of equals the first
+  // in row order. Its G z is left in w.gz.
   auto most_violated = [&]() {
+    int enter = -1;
+    double worst = 1.0, gz_enter = 0.0;
+    auto consider = [&](int k, double gz) {
+      const double viol = (gz - w.dv[k]) * scan[k];
+      if (viol >= worst && (viol > worst || k < enter)) worst = viol, enter = k, gz_enter = gz;
+    };
     const size_t n1 = a.one_row.size(), nm = a.multi_row.size();
-    for (size_t j = 0; j < n1; ++j) w.gz[a.one_row[j]] = w.val[a.one_pos[j]] * *a.one_src[j];
+    for (size_t j = 0; j < n1; ++j) consider(a.one_row[j], w.val[a.one_pos[j]] * *a.one_src[j]);
     for (size_t j = 0, e = 0; j < nm; ++j) {
       double acc = 0.0;
       for (const size_t end = a.multi_end[j]; e < end; ++e) acc += w.val[a.multi_pos[e]] * *a.multi_src[e];
-      w.gz[a.multi_row[j]] = acc;
+      consider(a.multi_row[j], acc);
     }
-    int enter = -1;
-    double worst = 1.0;
-    for (int k : a.active_rows) {
-      const double viol = (w.gz[k] - w.dv[k]) * scan[k];
-      if (viol > worst) worst = viol, enter = k;
-    }
+    if (enter >= 0) w.gz[enter] = gz_enter;
     return enter;
   };
 
@@ -740,9 +742,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   a.warm_valid = true;
   // Multipliers per row, soft slacks and their duals, and the dynamics multipliers by the adjoint
   // recursion pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i (the residuals' conventions).
-  detail::g_mul(w, 0, w.u, w.x, w.gz);  // the constant rows' G z too (stage 0: C x0; later stages: 0)
-  for (int k : a.const_rows)
-    if (k >= w.ro[1]) w.gz[k] = 0.0;
+  for (int i = 0; i <= a.N; ++i)  // every row's G z (the constant rows': C x0 on stage 0, else 0)
+    detail::g_mul(w, i, w.u + w.uo[i], w.x + i * nx, w.gz);
   for (int k = 0; k < w.rows; ++k) {
     w.lam[k] = a.state[k] == 2 ? a.ub[k] : 0.0;
     if (w.act[k] > 0.0 && w.soft[k] > 0.0) w.sig[k] = std::max(w.gz[k] - w.dv[k], 0.0);

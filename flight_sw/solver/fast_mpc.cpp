@@ -29,7 +29,15 @@ FastMpcSolver::FastMpcSolver(const OcpQpDims& dims, const Settings& settings) : 
 }
 
 void FastMpcSolver::setup(const OcpQp& qp) {
-  if (dense_ && inputs_ok(qp, Vector::Zero(dims_.nx)) && !dense_->same_data(qp)) dense_->condense(qp);
+  if (!dense_ || !inputs_ok(qp, Vector::Zero(dims_.nx))) return;
+  if (!dense_->same_data(qp)) dense_->condense(qp);
+  // The rows too, compressed and kept as the first solve would keep them: a solve then redoes only
+  // what d and x0 change. (prepare_rows reads x0 only for stage 0's constant rows, which every
+  // solve checks again.)
+  if (uses_active_set() && dense_->condensed) {
+    detail::prepare_rows(*work_, qp, settings_.tol);
+    dense_->keep_rows(*work_, qp);
+  }
 }
 
 FastMpcSolver::~FastMpcSolver() = default;

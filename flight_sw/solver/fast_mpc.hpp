@@ -51,8 +51,8 @@ class FastMpcSolver {
   FastMpcSolver& operator=(FastMpcSolver&&) noexcept;
 
   Status solve(const OcpQp& qp, const Vector& x0);  // no heap allocation; never throws; fills info()
-  // Condense the QP's A, B, Q, R for the dual active-set method ahead of the first solve (solve()
-  // does it itself, without allocating, when they differ from the last ones condensed).
+  // Condense the QP's A, B, Q, R for the dual active-set method and prepare its rows ahead of the
+  // first solve (solve() does both itself, without allocating, when they differ from the last ones).
   void setup(const OcpQp& qp);
   const Info& info() const { return info_; }
   const std::vector<Vector>& x() const { return x_; }  // N+1 states of the last solve
