@@ -29,15 +29,22 @@ Clocks (each solver's own, setup excluded; microseconds):
   piqp               result.info.solve_time (setup_time excluded), sparse interface
   clarabel           solution.solve_time (the DefaultSolver constructor does the setup)
   hpipm              wall time of the one d_ocp_qp_ipm_solve call minus the measured ctypes call
-                     overhead (rvd_pil/bench/hpipm.py: casadi's bundled HPIPM/BLASFEO, its own OCP form
-                     with box bounds, native soft constraints; set-up not timed); modes SPEED
-                     (hpipm) and ROBUST (hpipm-robust)
+                     overhead (rvd_pil/bench/hpipm.py: casadi's bundled HPIPM/BLASFEO, BLASFEO built for
+                     its GENERIC target; or a build of one's own through RVD_HPIPM_LIB_DIR), set-up not
+                     timed; its own OCP form: box bounds, one-sided rows with the missing side masked
+                     off, native soft constraints. hpipm: SPEED mode, hpipm-robust: ROBUST mode, both
+                     with HPIPM's own cold start (primal 0, its presets' mu0); hpipm-rollout and
+                     hpipm-robust-rollout: the same with the initial guess a user can give it
+                     (warm_start 1 on u = 0 and the states rolled out from x0, what flight_sw's cold
+                     start does inside its solve) and mu0 at the cost's scale (HPIPM's advice)
 Tolerances: flight_sw tol 1e-8 (relative residuals and duality gap); ProxSuite eps_abs 1e-8,
 eps_rel 0; PIQP eps_abs 1e-8 eps_rel 1e-9 (defaults); Clarabel tol_gap_abs/rel 1e-8, tol_feas 1e-8
 (defaults); DAQP primal/dual tolerances 1e-6 with automatic proximal regularisation (active set:
 exact up to rounding once the active set is right); OSQP eps_abs = eps_rel = 1e-6 with polishing
 (ADMM does not reach 1e-8 in practical iteration counts; the polished solution usually is exact);
-HPIPM tol_stat = tol_eq = tol_ineq = tol_comp = 1e-6 (absolute; 1e-8 only costs it iterations).
+HPIPM flight_sw's 1e-8 made relative to the QP's data, as HPIPM's absolute tolerances: tol_stat = 1e-8 x
+max(1, largest |cost entry|), tol_eq = tol_ineq = tol_comp = 1e-8 x max(1, largest |x0, b, d|)
+(rvd_pil/bench/hpipm.py says why absolute ones do not fit these QPs).
 """
 from __future__ import annotations
 
@@ -76,6 +83,7 @@ def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
         solver.setup(*qp.args()[:-1], **qp.kw())
         forms[key + ("setup",)] = (time.perf_counter() - t0) * 1e6 if mode == "converged" else math.nan
     r = forms[key].solve(*qp.args(), **qp.kw())
+    forms["_iterations"] = r.iterations if r.iterations else r.active_set_changes  # the active set: its changes
     return r.objective, r.status, r.solve_time_us, forms[key + ("setup",)]
 
 
@@ -161,12 +169,14 @@ def run_clarabel(qp: OcpQpData, forms: dict):
         math.nan
 
 
-def run_hpipm(qp: OcpQpData, forms: dict, mode: str = "speed"):
+def run_hpipm(qp: OcpQpData, forms: dict, mode: str = "speed", init: str = "cold"):
     from rvd_pil.bench.hpipm import HpipmSolver
-    solver = forms.get(("hpipm", mode))
+    key = ("hpipm", mode, init)
+    solver = forms.get(key)
     if solver is None:
-        solver = forms[("hpipm", mode)] = HpipmSolver(qp, mode=mode, tol=1e-6)
-    st, _it, t_us, x, u = solver.solve()
+        solver = forms[key] = HpipmSolver(qp, mode=mode, init=init, mu0="cost" if init == "rollout" else None)
+    st, it, t_us, x, u = solver.solve()
+    forms["_iterations"] = it
     ok = st == 0
     return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else f"status {st}"), t_us, math.nan
 
@@ -176,6 +186,8 @@ SOLVERS = {
     "flight_sw-ipm": lambda qp, f: run_flight_sw(qp, f, mode="interior_point"),
     "hpipm": run_hpipm,
     "hpipm-robust": lambda qp, f: run_hpipm(qp, f, mode="robust"),
+    "hpipm-rollout": lambda qp, f: run_hpipm(qp, f, init="rollout"),
+    "hpipm-robust-rollout": lambda qp, f: run_hpipm(qp, f, mode="robust", init="rollout"),
     "proxsuite-sparse": lambda qp, f: run_proxsuite(qp, f, dense=False),
     "proxsuite-dense": lambda qp, f: run_proxsuite(qp, f, dense=True),
     "osqp": run_osqp,
@@ -373,11 +385,15 @@ def main(argv=None) -> int:
         qps = load_qp_set(args.qp_set) if args.qp_set else synthetic_set(args.per_group, args.seed)
     print(f"{len(qps)} QPs from {args.qp_set or 'the synthetic MPC set'}; {args.repeats} timed solves per QP "
           f"and solver; times in microseconds (each solver's own clock, see the module docstring)\n")
+    if any(n.startswith("hpipm") for n in names):
+        from rvd_pil.bench.hpipm import call_overhead_ns, version
+        print(f"{version()}; ctypes call overhead subtracted: {call_overhead_ns():.0f} ns\n")
 
     times = defaultdict(list)      # (phase, N, solver) -> solve times
     setups = defaultdict(list)     # (phase, N, solver) -> setup times the solver reports
     wrong = defaultdict(int)       # (phase, N, solver) -> objective disagreements / failures
     worst = defaultdict(float)     # (phase, N, solver) -> worst relative objective difference
+    iters = defaultdict(list)      # (phase, N, solver) -> iterations (solvers that report them)
     count = defaultdict(int)
     used = defaultdict(int)        # which reference solved how many QPs
     for i, qp in enumerate(qps):
@@ -394,10 +410,13 @@ def main(argv=None) -> int:
         count[key] += 1
         for name in names:
             for rep in range(args.repeats):
+                forms.pop("_iterations", None)
                 obj, status, t_us, setup_us = SOLVERS[name](qp, forms)
                 times[key + (name,)].append(t_us)
                 setups[key + (name,)].append(setup_us)
                 if rep == 0:
+                    if "_iterations" in forms:
+                        iters[key + (name,)].append(forms["_iterations"])
                     err = abs(obj - ref.objective) / max(1.0, abs(ref.objective)) if status == "solved" else math.inf
                     worst[key + (name,)] = max(worst[key + (name,)], err)
                     if not err <= AGREE_REL:
@@ -405,8 +424,8 @@ def main(argv=None) -> int:
 
     print("reference objectives: " + ", ".join(f"{who} {n}" for who, n in used.items()) + "\n")
     groups = sorted(count, key=lambda k: (list(PHASE_HORIZONS).index(k[0]) if k[0] in PHASE_HORIZONS else 99, k[1]))
-    print(f"{'phase':<11}{'N':>4}  {'solver':<17}{'median':>10}{'p90':>10}{'p99':>10}{'ratio':>8}  {'worst rel. obj':>15}  "
-          f"{'bad':<6}{'setup (not in median)':>22}")
+    print(f"{'phase':<11}{'N':>4}  {'solver':<21}{'median':>10}{'p90':>10}{'p99':>10}{'ratio':>8}  {'worst rel. obj':>15}  "
+          f"{'bad':<6}{'setup (not in median)':>22}  {'iterations mean/max':>19}")
     for key in groups:
         ours = np.median(times[key + ("flight_sw",)]) if "flight_sw" in names else math.nan
         for name in names:
@@ -414,12 +433,16 @@ def main(argv=None) -> int:
             med = np.median(t)
             setup = np.median(setups[key + (name,)])
             setup_txt = "-" if math.isnan(setup) else f"{setup:.1f}"
-            print(f"{key[0]:<11}{key[1]:>4}  {name:<17}{med:>10.1f}{pct(t, 90):>10.1f}{pct(t, 99):>10.1f}{med / ours:>8.2f}  "
-                  f"{worst[key + (name,)]:>15.1e}  {str(wrong[key + (name,)]) + '/' + str(count[key]):<6}{setup_txt:>22}")
+            it = iters[key + (name,)]
+            it_txt = f"{np.mean(it):.1f}/{max(it)}" if it else "-"
+            print(f"{key[0]:<11}{key[1]:>4}  {name:<21}{med:>10.1f}{pct(t, 90):>10.1f}{pct(t, 99):>10.1f}{med / ours:>8.2f}  "
+                  f"{worst[key + (name,)]:>15.1e}  {str(wrong[key + (name,)]) + '/' + str(count[key]):<6}{setup_txt:>22}  {it_txt:>19}")
         print()
     print("ratio = solver median / flight_sw median (above 1: flight_sw is faster); bad = objective off the "
           f"reference by more than {AGREE_REL:g} relative, or not solved; setup = the solver's own setup time "
-          "(median), where it reports one (flight_sw allocates its workspace once per phase, before any solve)\n")
+          "(median), where it reports one (flight_sw allocates its workspace once per phase, before any solve); "
+          "iterations: per solve, where the solver reports them (HPIPM; flight_sw: interior-point iterations, "
+          "active-set changes where it runs the active-set method)\n")
 
     # Growth with the horizon: linear scaling gives N_max / N_min; the dissertation's CVXGEN gave
     # 864/119 = 7.3 for rendezvous N 45 vs 15.
