@@ -30,8 +30,8 @@ def fly_into_approach(p, case, approach_steps=3):
 
 
 def interior_point_approach(approach_n):
-    # The look-ahead prepares the interior point's warm start; the default approach solver (the dual
-    # active-set method, flight_sw/solver/README.md) starts cold and skips it.
+    # The approach on the interior point (the default approach solver is the dual active-set method,
+    # flight_sw/solver/README.md, tested below).
     p = fsw.GuidanceParams()
     p.approach.N = approach_n
     p.approach.solver_active_set_max_inputs = 0
@@ -70,17 +70,32 @@ def test_first_approach_solve_starts_from_the_lookahead(case, approach_n):
     assert entry.iterations <= 0.6 * cold_solve.iterations, (entry.iterations, cold_solve.iterations)
 
 
-@pytest.mark.parametrize("approach_n", [5, 15])
-def test_no_lookahead_for_the_active_set(approach_n):
-    """With the approach on the dual active-set method (the default) no rendezvous step runs the
-    look-ahead, and the entry plan is still the entry QP's optimum (Clarabel)."""
+@pytest.mark.parametrize("case,approach_n", [(1, 5), (1, 15), (2, 15), (1, 30)])
+def test_lookahead_for_the_active_set(case, approach_n):
+    """With the approach on the dual active-set method (the default) the rendezvous step before the
+    entry solves the approach QP at the predicted entry state; the entry's solve starts from that
+    working set: the same plan as the loop flown without the look-ahead and as Clarabel on the entry
+    QP, with at most half the row changes of that loop's cold entry solve."""
     p = fsw.GuidanceParams()
     p.approach.N = approach_n
-    cmds, (k, qp) = fly_into_approach(p, 1)
-    assert all(c.lookahead_iterations == 0 for c in cmds)
+    cold = fsw.GuidanceParams()
+    cold.approach.N = approach_n
+    cold.approach_lookahead_steps = 0
+    cmds, (k, qp) = fly_into_approach(p, case)
+    cmds_cold, (k_cold, _) = fly_into_approach(cold, case)
+    assert k == k_cold
+    ahead = cmds[k - 1]
+    assert ahead.phase == fsw.Phase.Rendezvous and ahead.lookahead_status == "solved"
+    assert ahead.lookahead_iterations == 0 and ahead.lookahead_active_set_changes > 0
+    assert all(c.lookahead_active_set_changes == 0 for c in cmds_cold)
     entry = cmds[k]
     assert entry.status == fsw.StepStatus.Ok and entry.solver_status == "solved" and entry.iterations == 0
     status, u_ref, _ = solve_clarabel(qp)
     assert status == "Solved"
     u_max = p.approach.u_max_mps
     np.testing.assert_allclose(entry.dv_cmd_mps, np.clip(u_ref[0][:3], -u_max, u_max), atol=1e-6)
+    for a, b in zip(cmds[k:], cmds_cold[k:]):
+        np.testing.assert_allclose(a.dv_cmd_mps, b.dv_cmd_mps, atol=1e-6)
+    assert cmds_cold[k].active_set_changes > 0
+    assert entry.active_set_changes <= 0.5 * cmds_cold[k].active_set_changes, \
+        (entry.active_set_changes, cmds_cold[k].active_set_changes)

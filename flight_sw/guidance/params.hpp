@@ -151,8 +151,10 @@ struct GuidanceParams {
   // approach_lookahead_steps samples, each rendezvous step also runs up to approach_lookahead_iterations
   // iterations of the approach QP built at that predicted entry state (continuing the previous
   // step's iterate): the first approach solve then starts from them (one step of 8: 5-8 iterations
-  // at the entry instead of 13-16; two steps: 3-5, for twice the rendezvous steps made costlier). Speed only: the approach QP
-  // at the entry is solved to the usual tolerance either way. 0 steps: off.
+  // at the entry instead of 13-16; two steps: 3-5, for twice the rendezvous steps made costlier). An
+  // approach on the dual active-set method gets one whole solve per step instead (its working set is
+  // the warm start). Speed only: the approach QP at the entry is solved to the usual tolerance either
+  // way. 0 steps: off.
   int approach_lookahead_steps = 1;
   int approach_lookahead_iterations = 8;
 

@@ -339,6 +339,8 @@ void bind_guidance(py::module_& m) {
       .def_property_readonly("recovery_iterations", [](const Command& c) { return c.recovery.iterations; })
       .def_property_readonly("lookahead_status", [](const Command& c) { return std::string(solver::to_string(c.lookahead.status)); })
       .def_property_readonly("lookahead_iterations", [](const Command& c) { return c.lookahead.iterations; })
+      .def_property_readonly("active_set_changes", [](const Command& c) { return c.solver.active_set_changes; })
+      .def_property_readonly("lookahead_active_set_changes", [](const Command& c) { return c.lookahead.active_set_changes; })
       .def("__repr__", [](const Command& c) {
         std::ostringstream s;
         s << "Command(step=" << c.step << ", phase=" << to_string(c.phase) << ", status=" << to_string(c.status)
