@@ -4,7 +4,7 @@ eliminated) and its answers against ProxSuite's on small QPs of each guidance ph
 import numpy as np
 import pytest
 
-pytest.importorskip("casadi", reason="HPIPM comes with casadi's wheel: pip install -e '.[bench]' (or pip install casadi)")
+pytest.importorskip("casadi", reason="HPIPM comes with casadi's wheel: pip install -e '.[test]' (make test installs it)")
 
 from support.qp_forms import PHASES, solve_proxsuite  # noqa: E402
 

@@ -358,20 +358,9 @@ bool ActiveSet::condense(const OcpQp& qp) {
 
 void ActiveSet::shift_warm_state(const Workspace& w) {
   for (int i = 0; i < N; ++i) {
-    const int a0 = w.ro[i], b0 = w.ro[i + 1];
-    if (w.nc[i] == w.nc[i + 1]) {
-      std::copy(warm_state.begin() + b0, warm_state.begin() + w.ro[i + 2], warm_state.begin() + a0);
-      continue;
-    }
-    int j = 0;
-    for (; j < std::min(w.nc[i], w.nc[i + 1]); ++j) {
-      const int a = a0 + j, b = b0 + j;
-      if (w.mid[a] - w.ptr[a] != w.mid[b] - w.ptr[b] || w.ptr[a + 1] - w.mid[a] != w.ptr[b + 1] - w.mid[b] ||
-          w.soft[a] != w.soft[b] || w.act[a] != w.act[b])
-        break;
-      warm_state[a] = warm_state[b];
-    }
-    std::fill(warm_state.begin() + a0 + j, warm_state.begin() + b0, 0);
+    const int j = shifted_rows(w, i);
+    std::copy(warm_state.begin() + w.ro[i + 1], warm_state.begin() + w.ro[i + 1] + j, warm_state.begin() + w.ro[i]);
+    std::fill(warm_state.begin() + w.ro[i] + j, warm_state.begin() + w.ro[i + 1], 0);  // no stale row in W
   }
 }
 
@@ -569,9 +558,9 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     return enter;
   };
 
-  // Column p of the Gram factor for the pending row m (in Mw's column p): true when m is
-  // independent of W's rows, with the new diagonal entry written; false when it is (numerically)
-  // a combination of them, Kl's column p then holding Kl^-1 M_W'm.
+  // Row p of the Gram factor for the pending row m (in Mw's column p): true when m is independent
+  // of W's rows, with the new diagonal entry written; false when it is (numerically) a combination
+  // of them, Kl's row p then holding Kl^-1 M_W'm.
   auto gram_append = [&](const double* m) {
     double* Kp = Kl + static_cast<size_t>(p) * cap;
     double mm = dotn(m, m), ll = 0.0;
@@ -742,8 +731,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   a.warm_valid = true;
   // Multipliers per row, soft slacks and their duals, and the dynamics multipliers by the adjoint
   // recursion pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i (the residuals' conventions).
-  for (int i = 0; i <= a.N; ++i)  // every row's G z (the constant rows': C x0 on stage 0, else 0)
-    detail::g_mul(w, i, w.u + w.uo[i], w.x + i * nx, w.gz);
+  detail::g_mul_all(w, w.u, w.x, w.gz);  // every row's G z (the constant rows': C x0 on stage 0, else 0)
   for (int k = 0; k < w.rows; ++k) {
     w.lam[k] = a.state[k] == 2 ? a.ub[k] : 0.0;
     if (w.act[k] > 0.0 && w.soft[k] > 0.0) w.sig[k] = std::max(w.gz[k] - w.dv[k], 0.0);

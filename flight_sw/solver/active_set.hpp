@@ -77,8 +77,7 @@ struct ActiveSet {
   // H = Gamma'Qbar Gamma + Rbar and its Cholesky factor; false when H is not positive definite.
   bool condense(const OcpQp& qp);
   // The warm state one stage on (FastMpcSolver::shift_warm_start): stage i takes stage i + 1's
-  // rows where the two stages have as many rows, else the leading rows that read alike (the same
-  // kind of row: as many input and state nonzeros, both hard or both soft); stage N keeps its own.
+  // rows that shift (kkt.hpp, shifted_rows), its other rows leave W; stage N keeps its own.
   void shift_warm_state(const Workspace& w);
 };
 

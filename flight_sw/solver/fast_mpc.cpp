@@ -167,23 +167,10 @@ void FastMpcSolver::shift_warm_start() {
   for (int i = 0; i < N; ++i) {
     std::copy(w.x + (i + 1) * n, w.x + (i + 2) * n, w.x + i * n);
     if (w.nu[i] == w.nu[i + 1]) std::copy(w.u + w.uo[i + 1], w.u + w.uo[i + 2], w.u + w.uo[i]);
-    if (w.nc[i] == w.nc[i + 1]) {
-      const int a = w.ro[i], b = w.ro[i + 1], c = w.ro[i + 2];
-      std::copy(w.lam + b, w.lam + c, w.lam + a);
-      std::copy(w.sig + b, w.sig + c, w.sig + a);
-      std::copy(w.mu + b, w.mu + c, w.mu + a);
-    } else {
-      // Stages of different shape (the first stage has no state rows): shift the leading rows that
-      // read alike (as many input and state nonzeros, both hard or both soft), e.g. the input bounds,
-      // so the first input's bound multipliers match the input shifted into its place.
-      for (int j = 0; j < std::min(w.nc[i], w.nc[i + 1]); ++j) {
-        const int a = w.ro[i] + j, b = w.ro[i + 1] + j;
-        if (w.mid[a] - w.ptr[a] != w.mid[b] - w.ptr[b] || w.ptr[a + 1] - w.mid[a] != w.ptr[b + 1] - w.mid[b] ||
-            w.soft[a] != w.soft[b] || w.act[a] != w.act[b])
-          break;
-        w.lam[a] = w.lam[b], w.sig[a] = w.sig[b], w.mu[a] = w.mu[b];
-      }
-    }
+    const int a = w.ro[i], b = w.ro[i + 1], j = detail::shifted_rows(w, i);  // (the others keep theirs)
+    std::copy(w.lam + b, w.lam + b + j, w.lam + a);
+    std::copy(w.sig + b, w.sig + b + j, w.sig + a);
+    std::copy(w.mu + b, w.mu + b + j, w.mu + a);
     if (i + 1 < N) std::copy(w.pi + (i + 1) * n, w.pi + (i + 2) * n, w.pi + i * n);
   }
 }

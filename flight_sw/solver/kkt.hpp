@@ -9,6 +9,7 @@
 // by a Riccati recursion over the stages: O(N (nx + nu)^3), no fill-in.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -64,6 +65,22 @@ inline void gt_mul_add(const Workspace& w, int i, const double* v, double* out_u
       for (int a = w.mid[k]; a < w.ptr[k + 1]; ++a) out_x[w.col[a]] += w.val[a] * vk;
   }
 }
+// How many leading rows of stage i take stage i + 1's row data when a plan shifts one stage: all
+// of them when the two stages have as many rows; otherwise (the first stage has no state rows) the
+// leading rows that read alike (as many input and state nonzeros, both hard or both soft), e.g.
+// the input bounds, so the first input's bound multipliers match the input shifted into its place.
+inline int shifted_rows(const Workspace& w, int i) {
+  if (w.nc[i] == w.nc[i + 1]) return w.nc[i];
+  int j = 0;
+  for (; j < std::min(w.nc[i], w.nc[i + 1]); ++j) {
+    const int a = w.ro[i] + j, b = w.ro[i + 1] + j;
+    if (w.mid[a] - w.ptr[a] != w.mid[b] - w.ptr[b] || w.ptr[a + 1] - w.mid[a] != w.ptr[b + 1] - w.mid[b] ||
+        w.soft[a] != w.soft[b] || w.act[a] != w.act[b])
+      break;
+  }
+  return j;
+}
+
 // G z over all stages (stage 0: x0 is data, so it enters gz too).
 inline void g_mul_all(const Workspace& w, const double* u, const double* x, double* out) {
   for (int i = 0; i <= w.N; ++i) g_mul(w, i, u + w.uo[i], x + i * w.nx, out);
