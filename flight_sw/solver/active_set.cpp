@@ -144,6 +144,10 @@ ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
   Wx.assign(static_cast<size_t>(N + 1) * n * nx, 0.0);
   f.assign(n, 0.0), c.assign(n, 0.0), g.assign(n, 0.0), v.assign(n, 0.0), tmp.assign(std::max(n + 1, nx), 0.0);
   xf.assign(static_cast<size_t>(N + 1) * nx, 0.0), lamx.assign(static_cast<size_t>(N + 1) * nx, 0.0);
+  po.assign(N + 2, 0);
+  for (int i = 0; i <= N; ++i) po[i + 1] = po[i] + (nu[i] + nx) * (nu[i] + nx);
+  P.assign(po[N + 1], 0.0);
+  inv_norm.assign(rows, 0.0);
   cap = n + 1;
   Mw.assign(static_cast<size_t>(cap) * n, 0.0);
   Kl.assign(static_cast<size_t>(cap) * cap, 0.0);
@@ -246,7 +250,25 @@ void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
         multi_end.push_back(static_cast<int>(multi_pos.size()));
       }
     }
+  if (condensed)
+    for (int i = 0; i <= N; ++i) row_norms(w, i);
   rows_valid = true;
+}
+
+void ActiveSet::row_norms(const Workspace& w, int i) {
+  const int m = nu[i] + nx;
+  const double* Pi = P.data() + po[i];
+  for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
+    // |m_k|^2 = e' P_i e over the row's entries (index c for input c, nu_i + s for state s).
+    double sq = 0.0;
+    for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) {
+      const int a = t < w.mid[k] ? w.col[t] : nu[i] + w.col[t];
+      double acc = 0.0;
+      for (int t2 = w.ptr[k]; t2 < w.ptr[k + 1]; ++t2) acc += Pi[a * m + (t2 < w.mid[k] ? w.col[t2] : nu[i] + w.col[t2])] * w.val[t2];
+      sq += w.val[t] * acc;
+    }
+    inv_norm[k] = sq > 0.0 ? 1.0 / std::sqrt(sq) : std::numeric_limits<double>::infinity();  // no input moves it: first
+  }
 }
 
 bool ActiveSet::same_data(const OcpQp& qp) const {
@@ -352,6 +374,17 @@ bool ActiveSet::condense(const OcpQp& qp) {
           for (int r = q; r < n; ++r) out[r] += gv * col[r];
         }
     }
+  // P_i: column a of stage i is Linv's column uo_i + a (a < nu_i, zero above its diagonal) or
+  // Wx_i's column a - nu_i (zero on stage 0: x_0 is given).
+  for (int i = 0; i <= N; ++i) {
+    const int m = nu[i] + nx;
+    auto column = [&](int a) {
+      return a < nu[i] ? Linv.data() + static_cast<size_t>(uo[i] + a) * n : Wx.data() + (static_cast<size_t>(i) * nx + a - nu[i]) * n;
+    };
+    double* Pi = P.data() + po[i];
+    for (int a = 0; a < m; ++a)
+      for (int b = 0; b <= a; ++b) Pi[a * m + b] = Pi[b * m + a] = dot(column(a), column(b), n);
+  }
   condensed = true;
   return true;
 }
@@ -389,7 +422,8 @@ bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
   // A stage with new C, D values but the same nonzeros (a turning target's cone rows) takes the
   // values in place.
   bool same = a.rows_valid;
-  for (int i = 0; i <= a.N && same; ++i) same = a.stage_same[i] || a.same_pattern(w, qp, i);
+  for (int i = 0; i <= a.N && same; ++i)
+    if (!a.stage_same[i] && (same = a.same_pattern(w, qp, i))) a.row_norms(w, i);
   if (!same) {
     const bool ok = detail::prepare_rows(w, qp, settings_.tol);
     a.keep_rows(w, qp);
@@ -456,12 +490,12 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     const double* col = Linv + static_cast<size_t>(j) * n;
     for (int r = j; r < n; ++r) a.c[r] += fj * col[r];
   }
-  // Per row: multiplier bound, 1 / the violation that counts (w.inv_t as scratch) and the weight of
-  // g'z - d in the search for the entering row (w.inv_s: + at lam = 0, - at lam = ub, 0 in W or never).
+  // Per row: 1 / the violation that counts (w.inv_t as scratch) and the weight of g'z - d in the
+  // search for the entering row (w.inv_s: 1 / |m_k| at lam = 0, - that at lam = ub, 0 in W or never).
   double* scan = w.inv_s;
   auto set_state = [&](int k, signed char st) {  // (active rows only)
     a.state[k] = st;
-    scan[k] = a.ub[k] == 0.0 || st == 1 ? 0.0 : st == 0 ? w.inv_t[k] : -w.inv_t[k];
+    scan[k] = a.ub[k] == 0.0 || st == 1 ? 0.0 : st == 0 ? a.inv_norm[k] : -a.inv_norm[k];
   };
   std::fill(a.state.begin(), a.state.end(), 0);  // constant rows stay at 0 and are never scanned
   for (int k : a.active_rows) {
@@ -537,15 +571,18 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     else
       detail::AnyStage::rollout(a, qp, w.x, w.u, w.tm);
   };
-  // The most violated row, from each active row's G z (a box row: one product) in one pass per
-  // kind of row: lam = 0 and g'z > d, or a soft row at lam = zs with g'z < d; of equals the first
-  // in row order. Its G z is left in w.gz.
+  // The row farthest outside its half-space in v (violation / |m_k|; a box row's G z: one product)
+  // of those violated by more than the tolerance, in one pass per kind of row: lam = 0 and g'z > d,
+  // or a soft row at lam = zs with g'z < d; of equals the first in row order. Its G z is left in
+  // w.gz. (By the distance, not the violation: rows of late stages combine many inputs, their
+  // violations are large, and taking them first makes the working set wander; README.)
   auto most_violated = [&]() {
     int enter = -1;
-    double worst = 1.0, gz_enter = 0.0;
+    double worst = 0.0, gz_enter = 0.0;
     auto consider = [&](int k, double gz) {
-      const double viol = (gz - w.dv[k]) * scan[k];
-      if (viol >= worst && (viol > worst || k < enter)) worst = viol, enter = k, gz_enter = gz;
+      const double dist = (gz - w.dv[k]) * scan[k];
+      if (dist >= worst && (dist > worst || k < enter) && std::abs(gz - w.dv[k]) * w.inv_t[k] > 1.0)
+        worst = dist, enter = k, gz_enter = gz;
     };
     const size_t n1 = a.one_row.size(), nm = a.multi_row.size();
     for (size_t j = 0; j < n1; ++j) consider(a.one_row[j], w.val[a.one_pos[j]] * *a.one_src[j]);

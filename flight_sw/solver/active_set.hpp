@@ -31,6 +31,11 @@ struct ActiveSet {
   // Linv = L^-1 (column-major, n x n, lower) and per stage i >= 1 Wx_i = L^-1 Gamma_i' (column-major,
   // n x nx, at i n nx; Gamma_i = dx_i/du): a row's m_k = L^-1 gbar_k is then a sum of nnz columns.
   std::vector<double> Linv, Wx;
+  // Per stage i the Gram matrix P_i of the v-space columns its rows combine (Linv's columns of u_i,
+  // then Wx_i's; (nu_i + nx)^2 at po[i]), and per row 1 / |m_k| from it (inf when m_k = 0): the
+  // entering row is the one farthest outside its half-space in v = L'u, (g'z - d) / |m_k|.
+  std::vector<int> po;
+  std::vector<double> P, inv_norm;
   // Per solve.
   std::vector<double> f, c, xf, lamx;  // condensed gradient, c = L^-1 f (+ saturated soft rows), x_free, adjoint
   std::vector<double> g;               // a condensed row (scratch)
@@ -76,6 +81,8 @@ struct ActiveSet {
   void keep_rows(const Workspace& w, const OcpQp& qp);
   // H = Gamma'Qbar Gamma + Rbar and its Cholesky factor; false when H is not positive definite.
   bool condense(const OcpQp& qp);
+  // inv_norm of stage i's rows (as the workspace compresses them) from P_i; needs condensed.
+  void row_norms(const Workspace& w, int i);
   // The warm state one stage on (FastMpcSolver::shift_warm_start): stage i takes stage i + 1's
   // rows that shift (kkt.hpp, shifted_rows), its other rows leave W; stage N keeps its own.
   void shift_warm_state(const Workspace& w);
