@@ -271,7 +271,7 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
         w.rcs[r] = w.sig[r] * w.mu[r] + (second_order ? w.dsig_aff[r] * w.dmu_aff[r] : 0.0) - smu;
       }
     };
-    centred_targets(true);
+    centred_targets(amax_aff >= S.second_order_from);
     // Rounding in the reduced system only matters once the barrier weights are large: refine the
     // step in the late iterations only.
     const bool refine = gap <= S.refine_from_gap * std::max(1.0, std::abs(obj));
