@@ -224,3 +224,46 @@ def test_warm_start_along_a_closed_loop(closed_loop_qps, phase):
     warm.reset_warm_start()
     res = warm.solve(*qps[0].args(), **qps[0].kw())
     agrees(qps[0], res, reference(qps[0]))
+
+
+def rows_scaled(qp: OcpQpData, rng: np.random.Generator) -> OcpQpData:
+    """The same QP with every row g'z <= d multiplied by its own factor in [0.1, 10]: the feasible set
+    and the optimum do not change; a soft row's penalty per unit of the scaled violation is divided
+    by the factor (zs / f, Zs / f^2), so its cost does not change either."""
+    out = dataclasses.replace(qp)
+    out.C, out.D, out.d = [], [], []
+    out.zs = None if qp.idxs is None else []
+    out.Zs = None if qp.idxs is None else []
+    for i in range(qp.N + 1):
+        f = rng.uniform(0.1, 10.0, qp.C[i].shape[0])
+        out.C.append(f[:, None] * qp.C[i])
+        out.D.append(f[:, None] * qp.D[i])
+        out.d.append(f * qp.d[i])
+        if qp.idxs is not None:
+            fs = f[np.asarray(qp.idxs[i], int)]
+            out.zs.append(np.asarray(qp.zs[i]) / fs)
+            out.Zs.append(np.asarray(qp.Zs[i]) / fs ** 2)
+    return out
+
+
+@pytest.mark.parametrize("phase", list(GENERATORS))
+def test_row_scaling_leaves_the_path_unchanged(phase, closed_loop_qps):
+    """The entering row is the one farthest outside its half-space (violation over the row's norm in
+    the condensed metric), so multiplying rows by positive factors changes neither the plan nor the
+    sequence of working sets: the same number of changes and the same inputs. (Taking the largest
+    violation instead lets a row's scale decide which row enters.)"""
+    rng = np.random.default_rng(7)
+    loop = closed_loop_qps[2 if phase == "approach" else 3]
+    qps = [make(phase, N, 500 + N) for N in (5, 12, 30)] + loop[:: max(1, len(loop) // 8)]
+    changed = 0
+    for qp in qps:
+        res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), tol=1e-8)
+        scaled = rows_scaled(qp, rng)
+        res_s = flight_sw.solve_ocp_qp(*scaled.args(), **scaled.kw(), tol=1e-8)
+        assert by_active_set(res) and by_active_set(res_s)
+        assert res_s.active_set_changes == res.active_set_changes
+        u, u_s = np.concatenate(list(res.u)), np.concatenate(list(res_s.u))
+        assert np.allclose(u_s, u, rtol=1e-8, atol=1e-10 * max(1.0, np.abs(u).max()))
+        assert res_s.objective == pytest.approx(res.objective, rel=1e-9, abs=1e-9)
+        changed += res.active_set_changes
+    assert changed > 0  # the QPs needed working sets
