@@ -7,8 +7,10 @@ kernels and the infeasibility certificate. Prints figures; asserts nothing.
     python -m rvd_pil.bench.solver_insns --out reports/pil  # summarise an existing campaign directory
 
 Per (target, phase, N): solves, mean and max instructions per solve, mean iterations, max/median
-estimated target time (the closed-loop goal: <= 2), and the ratio to the earlier figures where the
-earlier campaign measured them (rpi3 means of `make pil` before the change).
+estimated target time (the closed-loop goal: <= 2), the ratio to the earlier figures where the
+earlier campaign measured them (rpi3 means of `make pil` before the change), and which solve was
+the largest: its run's step, "first" when it was the phase's first solve of that run (a cold start
+unless a look-ahead prepared it), and its interior-point iterations when it ran any.
 """
 from __future__ import annotations
 
@@ -38,7 +40,7 @@ def main(argv=None) -> int:
     rows = rows[rows["mode"] == "user"] if "mode" in rows else rows
     print(f"instructions per solve (QEMU user mode, plugin counts), campaign {out}")
     print(f"{'target':<7}{'phase':<11}{'N':>4}{'solves':>8}{'mean insns':>12}{'max insns':>12}{'mean it':>9}"
-          f"{'max/median t':>14}{'vs earlier':>12}")
+          f"{'max/median t':>14}{'vs earlier':>12}  largest solve")
     order = {"rendezvous": 0, "approach": 1, "docking": 2}
     for (target, phase, n), g in sorted(rows.groupby(["target", "phase_name", "N"]),
                                         key=lambda kv: (kv[0][0], order[kv[0][1]], kv[0][2])):
@@ -46,8 +48,13 @@ def main(argv=None) -> int:
         ratio = g["target_us_nominal"].max() / g["target_us_nominal"].median()
         ref = EARLIER_MEAN.get((target, phase, int(n)))
         vs = f"{mean / ref - 1:+.0%}" if ref else "-"
+        worst = g.loc[g["target_us_nominal"].idxmax()]
+        first = worst["step"] == g.loc[g["run"] == worst["run"], "step"].min()
+        where = f"{worst['scenario_label']} step {int(worst['step'])}" + (" (first)" if first else "")
+        if worst["iterations"] > 0:
+            where += f", {int(worst['iterations'])} it"
         print(f"{target:<7}{phase:<11}{int(n):>4}{len(g):>8}{mean / 1e6:>11.2f}M{g['instructions'].max() / 1e6:>11.2f}M"
-              f"{g['iterations'].mean():>9.1f}{ratio:>14.2f}{vs:>12}")
+              f"{g['iterations'].mean():>9.1f}{ratio:>14.2f}{vs:>12}  {where}")
     print("vs earlier: change of the mean against `make pil` before the change (rpi3; the other cells were not "
           "measured then); max/median t: the closed loop's largest solve over its median (estimated target time)")
     return 0
