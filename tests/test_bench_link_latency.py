@@ -59,7 +59,7 @@ def test_a_row_that_cannot_run_is_skipped_with_the_reason(tmp_path, monkeypatch,
     for tool in present:  # a PATH holding only these tools
         real = shutil.which(tool)
         if real is None:
-            pytest.skip(f"{tool} is not installed here")
+            pytest.skip(f"{tool} is not installed here: tools/install-deps test")
         (tmp_path / tool).symlink_to(real)
     row = ll._user_row("q7s", 10)
     monkeypatch.setenv("PATH", str(tmp_path))

@@ -261,10 +261,10 @@ void ActiveSet::row_norms(const Workspace& w, int i) {
   for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
     // |m_k|^2 = e' P_i e over the row's entries (index c for input c, nu_i + s for state s).
     double sq = 0.0;
+    auto entry = [&](int t) { return t < w.mid[k] ? w.col[t] : nu[i] + w.col[t]; };
     for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) {
-      const int a = t < w.mid[k] ? w.col[t] : nu[i] + w.col[t];
       double acc = 0.0;
-      for (int t2 = w.ptr[k]; t2 < w.ptr[k + 1]; ++t2) acc += Pi[a * m + (t2 < w.mid[k] ? w.col[t2] : nu[i] + w.col[t2])] * w.val[t2];
+      for (int t2 = w.ptr[k]; t2 < w.ptr[k + 1]; ++t2) acc += Pi[entry(t) * m + entry(t2)] * w.val[t2];
       sq += w.val[t] * acc;
     }
     inv_norm[k] = sq > 0.0 ? 1.0 / std::sqrt(sq) : std::numeric_limits<double>::infinity();  // no input moves it: first
@@ -490,18 +490,16 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     const double* col = Linv + static_cast<size_t>(j) * n;
     for (int r = j; r < n; ++r) a.c[r] += fj * col[r];
   }
-  // Per row: 1 / the violation that counts (w.inv_t as scratch) and the weight of g'z - d in the
-  // search for the entering row (w.inv_s: 1 / |m_k| at lam = 0, - that at lam = ub, 0 in W or never).
+  // Per row: the weight of g'z - d in the search for the entering row (w.inv_s as scratch: 1 / |m_k|
+  // at lam = 0, - that at lam = ub, 0 in W or never).
   double* scan = w.inv_s;
   auto set_state = [&](int k, signed char st) {  // (active rows only)
     a.state[k] = st;
     scan[k] = a.ub[k] == 0.0 || st == 1 ? 0.0 : st == 0 ? a.inv_norm[k] : -a.inv_norm[k];
   };
   std::fill(a.state.begin(), a.state.end(), 0);  // constant rows stay at 0 and are never scanned
-  for (int k : a.active_rows) {
-    w.inv_t[k] = 1.0 / (0.01 * settings_.tol * std::max(1.0, std::abs(w.dv[k])));
-    set_state(k, 0);
-  }
+  for (int k : a.active_rows) set_state(k, 0);
+  const double violation_tol = 0.01 * settings_.tol;  // a row counts as violated beyond this x max(1, |d|)
   const int max_iter = settings_.active_set_max_iter;
   int p = 0;  // rows in W
 
@@ -580,8 +578,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     int enter = -1;
     double worst = 0.0, gz_enter = 0.0;
     auto consider = [&](int k, double gz) {
-      const double dist = (gz - w.dv[k]) * scan[k];
-      if (dist >= worst && (dist > worst || k < enter) && std::abs(gz - w.dv[k]) * w.inv_t[k] > 1.0)
+      const double r = gz - w.dv[k], dist = r * scan[k];
+      if (dist >= worst && (dist > worst || k < enter) && std::abs(r) > violation_tol * std::max(1.0, std::abs(w.dv[k])))
         worst = dist, enter = k, gz_enter = gz;
     };
     const size_t n1 = a.one_row.size(), nm = a.multi_row.size();
