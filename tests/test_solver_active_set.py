@@ -106,6 +106,42 @@ def test_quadratic_soft_penalty_stays_on_the_interior_point():
     agrees(qp, res, reference(qp))
 
 
+def chain_qp(nx: int, N: int, rng: np.random.Generator) -> OcpQpData:
+    """nx masses in a row driven by one force through the first (nu = 1), |u| <= 1 and |x_j| <= 2:
+    many states per input."""
+    A = np.eye(nx) + 0.05 * (np.eye(nx, k=1) + np.eye(nx, k=-1) - 2.0 * np.eye(nx))
+    B = np.zeros((nx, 1))
+    B[0, 0] = 0.1
+    x0 = rng.uniform(-1.5, 1.5, nx)
+    C_state = np.vstack([np.eye(nx), -np.eye(nx)])
+    As, Bs, bs, Qs, qs, Rs, rs, Cs, Ds, ds = ([] for _ in range(10))
+    for i in range(N + 1):
+        nu = 1 if i < N else 0
+        Qs.append(np.eye(nx)), qs.append(np.zeros(nx)), Rs.append(np.eye(nu)), rs.append(np.zeros(nu))
+        C, D, d = C_state, np.zeros((2 * nx, nu)), np.full(2 * nx, 2.0)
+        if nu:
+            C = np.vstack([C, np.zeros((2, nx))])
+            D = np.vstack([D, [[1.0], [-1.0]]])
+            d = np.concatenate([d, [1.0, 1.0]])
+            As.append(A), Bs.append(B), bs.append(np.zeros(nx))
+        Cs.append(C), Ds.append(D), ds.append(d)
+    return OcpQpData(As, Bs, bs, Qs, qs, Rs, rs, Cs, Ds, ds, x0)
+
+
+@pytest.mark.parametrize("nx, by_active", [(60, True), (130, False)])
+def test_many_states_per_input_go_to_the_interior_point(nx, by_active):
+    """The active set keeps the products of every pair of stages' condensed columns, sum over
+    i <= j of (nu_i + nx)(nu_j + nx) doubles: 0.24 M at nx = 60, N = 10, nu = 1, within its 1 M
+    limit, and 1.13 M at nx = 130, above it. The second QP (10 inputs, within the input limit)
+    goes to the interior point instead; both answers agree with ProxSuite."""
+    qp = chain_qp(nx, 10, np.random.default_rng(nx))
+    res = flight_sw.solve_ocp_qp(*qp.args(), tol=1e-8)
+    assert by_active_set(res) == by_active, (res.iterations, res.active_set_changes)
+    if not by_active:
+        assert res.iterations > 0 and res.active_set_changes == 0
+    agrees(qp, res, reference(qp))
+
+
 def test_changed_dynamics_and_weights_are_condensed_again():
     """One solver, set up for one QP, then given QPs with other A, B, Q, R (another period, other
     weights): each answer is the optimum of the QP given, not of the one condensed at setup."""

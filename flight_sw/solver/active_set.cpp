@@ -16,8 +16,9 @@
 // bound; when none ever does (p >= 0 on hard rows only), y = p is a Farkas certificate (y >= 0,
 // G'y = 0, h'y = s_k < 0): the QP is infeasible.
 //
-// Cost per iteration: O(n^2) for an entering row (condensing it, L^-1, the Gram column), O(|W|^2)
-// for a leaving one, O(n^2 + N nx^2 + rows) for the primal point and its slacks.
+// Cost per iteration: O(n nnz + |W|^2) for an entering row (condensing it; its Gram column from the
+// stage-pair products P_ij, a few products per entry), O(|W|^2) for a leaving one, O(n^2 + N nx^2 +
+// rows) for the primal point and its slacks.
 #include "flight_sw/solver/active_set.hpp"
 
 #include <algorithm>
@@ -144,9 +145,12 @@ ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
   Wx.assign(static_cast<size_t>(N + 1) * n * nx, 0.0);
   f.assign(n, 0.0), c.assign(n, 0.0), g.assign(n, 0.0), v.assign(n, 0.0), tmp.assign(std::max(n + 1, nx), 0.0);
   xf.assign(static_cast<size_t>(N + 1) * nx, 0.0), lamx.assign(static_cast<size_t>(N + 1) * nx, 0.0);
-  po.assign(N + 2, 0);
-  for (int i = 0; i <= N; ++i) po[i + 1] = po[i] + (nu[i] + nx) * (nu[i] + nx);
-  P.assign(po[N + 1], 0.0);
+  po.assign(static_cast<size_t>(N + 1) * (N + 1), 0);
+  size_t pairs = 0;
+  for (int i = 0; i <= N; ++i)
+    for (int j = i; j <= N; ++j) po[i * (N + 1) + j] = static_cast<int>(pairs), pairs += static_cast<size_t>(nu[i] + nx) * (nu[j] + nx);
+  P.assign(pairs, 0.0);  // (pairs == pair_products(d))
+  for (int i = 0; i <= N; ++i) row_stage.insert(row_stage.end(), d.nc[i], i);
   inv_norm.assign(rows, 0.0);
   cap = n + 1;
   Mw.assign(static_cast<size_t>(cap) * n, 0.0);
@@ -170,7 +174,14 @@ ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
     list->reserve(rows);
   one_src.reserve(rows);
   multi_pos.reserve(static_cast<size_t>(rows) * (d.nx + *std::max_element(nu.begin(), nu.end())));
+  ent.assign(multi_pos.capacity(), 0);
   multi_src.reserve(multi_pos.capacity());
+}
+
+size_t ActiveSet::pair_products(const OcpQpDims& d) {
+  size_t sum = 0, squares = 0;
+  for (int i = 0; i <= d.N; ++i) sum += d.nu[i] + d.nx, squares += static_cast<size_t>(d.nu[i] + d.nx) * (d.nu[i] + d.nx);
+  return (sum * sum + squares) / 2;  // sum over i <= j of m_i m_j
 }
 
 bool ActiveSet::same_rows(const OcpQp& qp, int i) const {
@@ -250,6 +261,9 @@ void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
         multi_end.push_back(static_cast<int>(multi_pos.size()));
       }
     }
+  for (int i = 0; i <= N; ++i)
+    for (int k = w.ro[i]; k < w.ro[i + 1]; ++k)
+      for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) ent[t] = t < w.mid[k] ? w.col[t] : nu[i] + w.col[t];
   if (condensed)
     for (int i = 0; i <= N; ++i) row_norms(w, i);
   rows_valid = true;
@@ -257,18 +271,33 @@ void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
 
 void ActiveSet::row_norms(const Workspace& w, int i) {
   const int m = nu[i] + nx;
-  const double* Pi = P.data() + po[i];
+  const double* Pi = P.data() + po[i * (N + 1) + i];
   for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
     // |m_k|^2 = e' P_i e over the row's entries (index c for input c, nu_i + s for state s).
     double sq = 0.0;
-    auto entry = [&](int t) { return t < w.mid[k] ? w.col[t] : nu[i] + w.col[t]; };
     for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) {
       double acc = 0.0;
-      for (int t2 = w.ptr[k]; t2 < w.ptr[k + 1]; ++t2) acc += Pi[entry(t) * m + entry(t2)] * w.val[t2];
+      for (int t2 = w.ptr[k]; t2 < w.ptr[k + 1]; ++t2) acc += Pi[ent[t] * m + ent[t2]] * w.val[t2];
       sq += w.val[t] * acc;
     }
     inv_norm[k] = sq > 0.0 ? 1.0 / std::sqrt(sq) : std::numeric_limits<double>::infinity();  // no input moves it: first
   }
+}
+
+double ActiveSet::gram(const Workspace& w, int r, int k) const {
+  int i = row_stage[r], j = row_stage[k];
+  if (i > j) std::swap(i, j), std::swap(r, k);
+  const int mj = nu[j] + nx;
+  const double* Pij = P.data() + po[i * (N + 1) + j];
+  double sum = 0.0;
+  const int k0 = w.ptr[k], k1 = w.ptr[k + 1];
+  for (int t = w.ptr[r]; t < w.ptr[r + 1]; ++t) {
+    const double* row = Pij + ent[t] * mj;
+    double acc = 0.0;
+    for (int t2 = k0; t2 < k1; ++t2) acc += row[ent[t2]] * w.val[t2];
+    sum += w.val[t] * acc;
+  }
+  return sum;
 }
 
 bool ActiveSet::same_data(const OcpQp& qp) const {
@@ -374,17 +403,18 @@ bool ActiveSet::condense(const OcpQp& qp) {
           for (int r = q; r < n; ++r) out[r] += gv * col[r];
         }
     }
-  // P_i: column a of stage i is Linv's column uo_i + a (a < nu_i, zero above its diagonal) or
+  // P_ij: column a of stage i is Linv's column uo_i + a (a < nu_i, zero above its diagonal) or
   // Wx_i's column a - nu_i (zero on stage 0: x_0 is given).
-  for (int i = 0; i <= N; ++i) {
-    const int m = nu[i] + nx;
-    auto column = [&](int a) {
-      return a < nu[i] ? Linv.data() + static_cast<size_t>(uo[i] + a) * n : Wx.data() + (static_cast<size_t>(i) * nx + a - nu[i]) * n;
-    };
-    double* Pi = P.data() + po[i];
-    for (int a = 0; a < m; ++a)
-      for (int b = 0; b <= a; ++b) Pi[a * m + b] = Pi[b * m + a] = dot(column(a), column(b), n);
-  }
+  auto column = [&](int i, int a) {
+    return a < nu[i] ? Linv.data() + static_cast<size_t>(uo[i] + a) * n : Wx.data() + (static_cast<size_t>(i) * nx + a - nu[i]) * n;
+  };
+  for (int i = 0; i <= N; ++i)
+    for (int j = i; j <= N; ++j) {
+      const int mi = nu[i] + nx, mj = nu[j] + nx;
+      double* Pij = P.data() + po[i * (N + 1) + j];
+      for (int a = 0; a < mi; ++a)
+        for (int b = 0; b < mj; ++b) Pij[a * mj + b] = i == j && b < a ? Pij[b * mj + a] : dot(column(i, a), column(j, b), n);
+    }
   condensed = true;
   return true;
 }
@@ -504,10 +534,11 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   int p = 0;  // rows in W
 
   auto dotn = [n](const double* x, const double* y) { return detail::dot(x, y, n); };
-  // c += delta m (a row reaching or leaving its upper bound): e_s = h_s + m_s'c follows.
-  auto shift_c = [&](const double* m, double delta) {
+  // c += delta m (row `row`, condensed in m, reaching or leaving its upper bound): e_s = h_s + m_s'c
+  // follows.
+  auto shift_c = [&](int row, const double* m, double delta) {
     for (int k = 0; k < n; ++k) a.c[k] += delta * m[k];
-    for (int s = 0; s < p; ++s) a.e[s] += delta * dotn(Mw + static_cast<size_t>(s) * n, m);
+    for (int s = 0; s < p; ++s) a.e[s] += delta * a.gram(w, a.slot_row[s], row);
   };
   // Row k condensed into column `col` of Mw as m = L^-1 gbar = sum of columns of Linv (inputs)
   // and Wx_i (states); returns h = d - c'x_free of it.
@@ -593,15 +624,15 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     return enter;
   };
 
-  // Row p of the Gram factor for the pending row m (in Mw's column p): true when m is independent
-  // of W's rows, with the new diagonal entry written; false when it is (numerically) a combination
-  // of them, Kl's row p then holding Kl^-1 M_W'm.
-  auto gram_append = [&](const double* m) {
+  // Row p of the Gram factor for the pending row k: true when its m is independent of W's rows,
+  // with the new diagonal entry written; false when it is (numerically) a combination of them, Kl's
+  // row p then holding Kl^-1 M_W'm.
+  auto gram_append = [&](int k) {
     double* Kp = Kl + static_cast<size_t>(p) * cap;
-    double mm = dotn(m, m), ll = 0.0;
+    double mm = a.gram(w, k, k), ll = 0.0;
     for (int s = 0; s < p; ++s) {
       const double* Ks = Kl + static_cast<size_t>(s) * cap;
-      Kp[s] = (dotn(Mw + static_cast<size_t>(s) * n, m) - detail::dot(Ks, Kp, s)) / Ks[s];
+      Kp[s] = (a.gram(w, a.slot_row[s], k) - detail::dot(Ks, Kp, s)) / Ks[s];
       ll += Kp[s] * Kp[s];
     }
     const double dd = mm - ll;
@@ -625,13 +656,13 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
         double* m = Mw + static_cast<size_t>(p) * n;
         condense_row(k, p);
         set_state(k, 2);
-        shift_c(m, a.ub[k]);
+        shift_c(k, m, a.ub[k]);
       }
     for (int k : a.active_rows) {
       if (a.warm_state[k] != 1 || a.ub[k] == 0.0 || p >= n) continue;
       double* m = Mw + static_cast<size_t>(p) * n;
       const double h = condense_row(k, p);
-      if (!gram_append(m)) continue;
+      if (!gram_append(k)) continue;
       a.slot_row[p] = k;
       a.e[p] = h + dotn(m, a.c.data());
       a.lam[p] = 0.0;
@@ -661,14 +692,14 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
       // (violation >= ub |m|^2) goes there at once: one change instead of entering and leaving W.
       if (a.ub[enter] < inf) {
         const double viol = from_upper ? w.dv[enter] - w.gz[enter] : w.gz[enter] - w.dv[enter];
-        if (viol >= a.ub[enter] * dotn(m, m)) {
+        if (viol >= a.ub[enter] * a.gram(w, enter, enter)) {
           set_state(enter, from_upper ? 0 : 2);
-          shift_c(m, from_upper ? -a.ub[enter] : a.ub[enter]);
+          shift_c(enter, m, from_upper ? -a.ub[enter] : a.ub[enter]);
           need_primal = false;  // the working set's multipliers follow the new gradient
           continue;
         }
       }
-      if (from_upper) shift_c(m, -a.ub[enter]);
+      if (from_upper) shift_c(enter, m, -a.ub[enter]);
       a.slot_row[p] = enter;
       a.e[p] = h + dotn(m, a.c.data());
       a.lam[p] = from_upper ? a.ub[enter] : 0.0;
@@ -677,7 +708,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
       // Append to the Gram factor, or move along the null space while it would be singular.
       for (;;) {
         double* Kp = Kl + static_cast<size_t>(p) * cap;
-        if (gram_append(m)) {
+        if (gram_append(enter)) {
           ++p;
           break;
         }
@@ -707,7 +738,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
         if (block == p) {  // the entering row itself reached its other bound: it leaves at once
           const bool upper = !from_upper;
           set_state(enter, upper ? 2 : 0);
-          if (upper) shift_c(m, a.ub[enter]);
+          if (upper) shift_c(enter, m, a.ub[enter]);
           need_primal = true;  // v unchanged, but c moved with the saturated row: recompute
           break;
         }
@@ -715,7 +746,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
         const bool upper = a.dir[block] > 0.0;
         set_state(row, upper ? 2 : 0);
         const double lam_p = a.lam[p];
-        if (upper) shift_c(Mw + static_cast<size_t>(block) * n, a.ub[row]);
+        if (upper) shift_c(row, Mw + static_cast<size_t>(block) * n, a.ub[row]);
         remove_slot(block, true);
         m = Mw + static_cast<size_t>(p) * n;
         a.slot_row[p] = enter;
@@ -752,7 +783,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     const int row = a.slot_row[block];
     const bool upper = a.lam_star[block] > a.ub[row];
     set_state(row, upper ? 2 : 0);
-    if (upper) shift_c(Mw + static_cast<size_t>(block) * n, a.ub[row]);
+    if (upper) shift_c(row, Mw + static_cast<size_t>(block) * n, a.ub[row]);
     remove_slot(block, false);
     ++it;
   }

@@ -31,10 +31,14 @@ struct ActiveSet {
   // Linv = L^-1 (column-major, n x n, lower) and per stage i >= 1 Wx_i = L^-1 Gamma_i' (column-major,
   // n x nx, at i n nx; Gamma_i = dx_i/du): a row's m_k = L^-1 gbar_k is then a sum of nnz columns.
   std::vector<double> Linv, Wx;
-  // Per stage i the Gram matrix P_i of the v-space columns its rows combine (Linv's columns of u_i,
-  // then Wx_i's; (nu_i + nx)^2 at po[i]), and per row 1 / |m_k| from it (inf when m_k = 0): the
-  // entering row is the one farthest outside its half-space in v = L'u, (g'z - d) / |m_k|.
-  std::vector<int> po;
+  // Per pair of stages i <= j the products P_ij of the v-space columns their rows combine (stage i's
+  // are Linv's columns of u_i, then Wx_i's: nu_i + nx of them; P_ij row-major (nu_i + nx) x
+  // (nu_j + nx) at po[i (N + 1) + j]). A Gram entry m_s'm_k is then a sum over the two rows' few
+  // nonzeros (gram()), not a product of length n: the working set's Gram matrix costs O(p^2), not
+  // O(p^2 n). Per row 1 / |m_k| from P_ii (inf when m_k = 0): the entering row is the one farthest
+  // outside its half-space in v = L'u, (g'z - d) / |m_k|.
+  std::vector<int> po, row_stage;
+  std::vector<int> ent;  // per nonzero of the rows kept (w.col's positions): its column in P (c or nu_i + s)
   std::vector<double> P, inv_norm;
   // Per solve.
   std::vector<double> f, c, xf, lamx;  // condensed gradient, c = L^-1 f (+ saturated soft rows), x_free, adjoint
@@ -71,6 +75,11 @@ struct ActiveSet {
   std::vector<const double*> one_src, multi_src;
 
   explicit ActiveSet(const OcpQpDims& dims);
+  // Doubles of the stage-pair products P for these dimensions, and the most the method takes on
+  // (8 MB: far above the guidance's 315 KB at N = 30; a QP with many states and few inputs above it
+  // goes to the interior point rather than allocate that).
+  static size_t pair_products(const OcpQpDims& dims);
+  static constexpr size_t kMaxPairProducts = size_t{1} << 20;
   bool same_data(const OcpQp& qp) const;
   // Stage i's C, D and soft-row data equal the copy kept with the rows.
   bool same_rows(const OcpQp& qp, int i) const;
@@ -81,8 +90,10 @@ struct ActiveSet {
   void keep_rows(const Workspace& w, const OcpQp& qp);
   // H = Gamma'Qbar Gamma + Rbar and its Cholesky factor; false when H is not positive definite.
   bool condense(const OcpQp& qp);
-  // inv_norm of stage i's rows (as the workspace compresses them) from P_i; needs condensed.
+  // inv_norm of stage i's rows (as the workspace compresses them) from P_ii; needs condensed.
   void row_norms(const Workspace& w, int i);
+  // m_r'm_k of two rows as the workspace compresses them, from P; needs condensed.
+  double gram(const Workspace& w, int r, int k) const;
   // The warm state one stage on (FastMpcSolver::shift_warm_start): stage i takes stage i + 1's
   // rows that shift (kkt.hpp, shifted_rows), its other rows leave W; stage N keeps its own.
   void shift_warm_state(const Workspace& w);

@@ -25,7 +25,8 @@ FastMpcSolver::FastMpcSolver(const OcpQpDims& dims, const Settings& settings) : 
     lam_.push_back(Vector::Zero(dims_.nc[i]));
     sig_.push_back(Vector::Zero(dims_.soft_rows(i)));
   }
-  if (work_->inputs <= settings_.active_set_max_inputs) dense_ = std::make_unique<detail::ActiveSet>(dims_);
+  if (work_->inputs <= settings_.active_set_max_inputs && detail::ActiveSet::pair_products(dims_) <= detail::ActiveSet::kMaxPairProducts)
+    dense_ = std::make_unique<detail::ActiveSet>(dims_);
 }
 
 void FastMpcSolver::setup(const OcpQp& qp) {

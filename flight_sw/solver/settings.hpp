@@ -24,7 +24,8 @@ struct Settings {
   // interior point's fixed per-stage overhead and it needs about one iteration per active row.
   // Others, and a solve that reaches active_set_max_iter (entering plus leaving rows), go to the
   // interior point (cold). 0: always the interior point. The workspace for it is allocated by the
-  // constructor only when the inputs are within the limit then.
+  // constructor only when the inputs are within the limit then (and its stage-pair products within
+  // ActiveSet::kMaxPairProducts: 8 MB, reached only by QPs with many states per input).
   int active_set_max_inputs = 96;
   int active_set_max_iter = 200;
 
