@@ -11,14 +11,18 @@
 // it is violated by s = g'z - d >= 0 and adds zs g to the gradient, exactly the penalty zs s.
 // (Soft rows with Zs > 0 stay on the interior point.) The Gram matrix M_W'M_W keeps a Cholesky
 // factor, updated by one row per entering row and by Givens rotations per leaving row.
+// The method never forms v: the primal point is kept in inputs, u = L^-T v = uc - U_W lam with
+// uc = -L^-T c and U_k = L^-T m_k = H^-1 gbar_k (a sum of the row's nonzeros' columns of H^-1 and
+// H^-1 Gamma_i'), and a slack e_k = h_k + m_k'c is the row's slack d_k - g_k'z at u = uc. So a primal
+// point costs O(|W| n) and a rollout, not a triangular solve of O(n^2) as well.
 // A row that enters linearly dependent on W leaves the Gram matrix singular: the multipliers then
 // move along the null-space direction p (M p = 0: the primal point stays) until one reaches a
 // bound; when none ever does (p >= 0 on hard rows only), y = p is a Farkas certificate (y >= 0,
 // G'y = 0, h'y = s_k < 0): the QP is infeasible.
 //
-// Cost per iteration: O(n nnz + |W|^2) for an entering row (condensing it; its Gram column from the
-// stage-pair products P_ij, a few products per entry), O(|W|^2) for a leaving one, O(n^2 + N nx^2 +
-// rows) for the primal point and its slacks.
+// Cost per iteration: O(n nnz + |W|^2) for an entering row (its direction U_k; its Gram column from
+// the stage-pair products P_ij, a few products per entry), O(|W|^2) for a leaving one, O(|W| n +
+// N nx^2 + rows) for the primal point and its slacks.
 #include "flight_sw/solver/active_set.hpp"
 
 #include <algorithm>
@@ -141,9 +145,9 @@ ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
   }
   A.reserve(a), B.reserve(b), Q.reserve(q), R.reserve(r);
   L.assign(static_cast<size_t>(n) * n, 0.0);
-  Linv.assign(static_cast<size_t>(n) * n, 0.0);
-  Wx.assign(static_cast<size_t>(N + 1) * n * nx, 0.0);
-  f.assign(n, 0.0), c.assign(n, 0.0), g.assign(n, 0.0), v.assign(n, 0.0), tmp.assign(std::max(n + 1, nx), 0.0);
+  Hinv.assign(static_cast<size_t>(n) * n, 0.0);
+  Yx.assign(static_cast<size_t>(N + 1) * n * nx, 0.0);
+  f.assign(n, 0.0), uc.assign(n, 0.0), tmp.assign(std::max(n + 1, nx), 0.0);
   xf.assign(static_cast<size_t>(N + 1) * nx, 0.0), lamx.assign(static_cast<size_t>(N + 1) * nx, 0.0);
   po.assign(static_cast<size_t>(N + 1) * (N + 1), 0);
   size_t pairs = 0;
@@ -153,7 +157,7 @@ ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
   for (int i = 0; i <= N; ++i) row_stage.insert(row_stage.end(), d.nc[i], i);
   inv_norm.assign(rows, 0.0);
   cap = n + 1;
-  Mw.assign(static_cast<size_t>(cap) * n, 0.0);
+  Uw.assign(static_cast<size_t>(cap) * n, 0.0);
   Kl.assign(static_cast<size_t>(cap) * cap, 0.0);
   e.assign(cap, 0.0), lam.assign(cap, 0.0), lam_star.assign(cap, 0.0), dir.assign(cap, 0.0);
   slot_row.assign(cap, -1);
@@ -379,10 +383,13 @@ bool ActiveSet::condense(const OcpQp& qp) {
       Lr[j] = acc * inv;
     }
   }
-  // Linv column by column (L Linv e_j = e_j), then Wx_i column s = Linv Gamma_i' e_s.
-  std::fill(Linv.begin(), Linv.end(), 0.0);
+  // L^-1 column by column (L Linv e_j = e_j) into Hinv's place, then Wx_i column s = L^-1 Gamma_i' e_s
+  // into Yx's: the v-space columns of P (below); each becomes its L^-T image after.
+  double* Linv = Hinv.data();
+  double* Wx = Yx.data();
+  std::fill(Hinv.begin(), Hinv.end(), 0.0);
   for (int j = 0; j < n; ++j) {
-    double* col = Linv.data() + static_cast<size_t>(j) * n;
+    double* col = Linv + static_cast<size_t>(j) * n;
     for (int r = j; r < n; ++r) {
       const double* Lr = L.data() + static_cast<size_t>(r) * n;
       double acc = r == j ? 1.0 : 0.0;
@@ -390,23 +397,23 @@ bool ActiveSet::condense(const OcpQp& qp) {
       col[r] = acc / Lr[r];
     }
   }
-  std::fill(Wx.begin(), Wx.end(), 0.0);
+  std::fill(Yx.begin(), Yx.end(), 0.0);
   for (int i = 1; i <= N; ++i)
     for (int s = 0; s < nx; ++s) {
-      double* out = Wx.data() + (static_cast<size_t>(i) * nx + s) * n;
+      double* out = Wx + (static_cast<size_t>(i) * nx + s) * n;
       for (int j = 0; j < i; ++j)
         for (int cc = 0; cc < nu[j]; ++cc) {
           const double gv = G(i, j, s, cc);  // d x_i,s / d u_j,cc
           if (gv == 0.0) continue;
           const int q = uo[j] + cc;
-          const double* col = Linv.data() + static_cast<size_t>(q) * n;
+          const double* col = Linv + static_cast<size_t>(q) * n;
           for (int r = q; r < n; ++r) out[r] += gv * col[r];
         }
     }
   // P_ij: column a of stage i is Linv's column uo_i + a (a < nu_i, zero above its diagonal) or
   // Wx_i's column a - nu_i (zero on stage 0: x_0 is given).
   auto column = [&](int i, int a) {
-    return a < nu[i] ? Linv.data() + static_cast<size_t>(uo[i] + a) * n : Wx.data() + (static_cast<size_t>(i) * nx + a - nu[i]) * n;
+    return a < nu[i] ? Linv + static_cast<size_t>(uo[i] + a) * n : Wx + (static_cast<size_t>(i) * nx + a - nu[i]) * n;
   };
   for (int i = 0; i <= N; ++i)
     for (int j = i; j <= N; ++j) {
@@ -415,6 +422,17 @@ bool ActiveSet::condense(const OcpQp& qp) {
       for (int a = 0; a < mi; ++a)
         for (int b = 0; b < mj; ++b) Pij[a * mj + b] = i == j && b < a ? Pij[b * mj + a] : dot(column(i, a), column(j, b), n);
     }
+  // Each column y becomes L^-T y in place (L'z = y, back substitution along L's rows): L^-1's into
+  // H^-1's, L^-1 Gamma_i''s into H^-1 Gamma_i''s.
+  auto back_substitute = [&](double* y) {
+    for (int t = n - 1; t >= 0; --t) {
+      const double* Lt = L.data() + static_cast<size_t>(t) * n;
+      const double yt = y[t] /= Lt[t];
+      for (int r = 0; r < t; ++r) y[r] -= Lt[r] * yt;
+    }
+  };
+  for (int j = 0; j < n; ++j) back_substitute(Linv + static_cast<size_t>(j) * n);
+  for (int c = nx; c < (N + 1) * nx; ++c) back_substitute(Wx + static_cast<size_t>(c) * n);
   condensed = true;
   return true;
 }
@@ -504,7 +522,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   a.warm_valid = false;
   if (!a.condensed) return solve_converged(qp, false, settings_.max_iter, 0.0, settings_.warm_push);
   const int nx = a.nx, n = a.n, cap = a.cap;
-  double* Mw = a.Mw.data();
+  double* Uw = a.Uw.data();
   double* Kl = a.Kl.data();
   constexpr double inf = std::numeric_limits<double>::infinity();
 
@@ -513,12 +531,12 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     detail::FixedStage::gradient(a, qp, w.x, w.ut, w.tm);
   else
     detail::AnyStage::gradient(a, qp, w.x, w.ut, w.tm);
-  const double* Linv = a.Linv.data();
-  std::fill(a.c.begin(), a.c.end(), 0.0);  // c = L^-1 f
+  const double* Hinv = a.Hinv.data();
+  std::fill(a.uc.begin(), a.uc.end(), 0.0);  // uc = -H^-1 f
   for (int j = 0; j < n; ++j) {
-    const double fj = a.f[j];
-    const double* col = Linv + static_cast<size_t>(j) * n;
-    for (int r = j; r < n; ++r) a.c[r] += fj * col[r];
+    const double fj = -a.f[j];
+    const double* col = Hinv + static_cast<size_t>(j) * n;
+    for (int r = 0; r < n; ++r) a.uc[r] += fj * col[r];
   }
   // Per row: the weight of g'z - d in the search for the entering row (w.inv_s as scratch: 1 / |m_k|
   // at lam = 0, - that at lam = ub, 0 in W or never).
@@ -533,41 +551,38 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   const int max_iter = settings_.active_set_max_iter;
   int p = 0;  // rows in W
 
-  auto dotn = [n](const double* x, const double* y) { return detail::dot(x, y, n); };
-  // c += delta m (row `row`, condensed in m, reaching or leaving its upper bound): e_s = h_s + m_s'c
-  // follows.
-  auto shift_c = [&](int row, const double* m, double delta) {
-    for (int k = 0; k < n; ++k) a.c[k] += delta * m[k];
-    for (int s = 0; s < p; ++s) a.e[s] += delta * a.gram(w, a.slot_row[s], row);
+  // uc -= delta U_row (row `row`, its direction in U, reaching or leaving its upper bound: the
+  // gradient gains delta gbar): the slacks e_s of W's rows (and of the pending row, slot p) follow.
+  auto shift_uc = [&](int row, const double* U, double delta, bool pending) {
+    for (int k = 0; k < n; ++k) a.uc[k] -= delta * U[k];
+    for (int s = 0; s < p + (pending ? 1 : 0); ++s) a.e[s] += delta * a.gram(w, a.slot_row[s], row);
   };
-  // Row k condensed into column `col` of Mw as m = L^-1 gbar = sum of columns of Linv (inputs)
-  // and Wx_i (states); returns h = d - c'x_free of it.
-  auto condense_row = [&](int k, int col) {
-    int i = 0;
-    while (w.ro[i + 1] <= k) ++i;
-    double* m = Mw + static_cast<size_t>(col) * n;
-    std::fill(m, m + n, 0.0);
-    for (int t = w.ptr[k]; t < w.mid[k]; ++t) {
-      const int q = a.uo[i] + w.col[t];
+  // Row k's input direction U = H^-1 gbar_k into column `col` of Uw: its nonzeros' columns of H^-1
+  // (inputs) and of Yx_i = H^-1 Gamma_i' (states).
+  auto direction = [&](int k, int col) {
+    const int i = a.row_stage[k];
+    double* U = Uw + static_cast<size_t>(col) * n;
+    std::fill(U, U + n, 0.0);
+    for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) {
       const double val = w.val[t];
-      const double* lc = Linv + static_cast<size_t>(q) * n;
-      for (int r = q; r < n; ++r) m[r] += val * lc[r];
+      const double* yc = t < w.mid[k] ? Hinv + static_cast<size_t>(a.uo[i] + w.col[t]) * n
+                                      : a.Yx.data() + (static_cast<size_t>(i) * nx + w.col[t]) * n;
+      for (int r = 0; r < n; ++r) U[r] += val * yc[r];
     }
-    double h = w.dv[k];
-    for (int t = w.mid[k]; t < w.ptr[k + 1]; ++t) {
-      const int s = w.col[t];
-      const double val = w.val[t];
-      h -= val * a.xf[i * nx + s];
-      const double* wc = a.Wx.data() + (static_cast<size_t>(i) * nx + s) * n;
-      for (int r = 0; r < n; ++r) m[r] += val * wc[r];
-    }
-    return h;
+    return U;
+  };
+  // g_k'z of row k at the primal point in w.u, w.x.
+  auto row_value = [&](int k) {
+    const int i = a.row_stage[k];
+    double gz = 0.0;
+    for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) gz += w.val[t] * (t < w.mid[k] ? w.u[a.uo[i] + w.col[t]] : w.x[i * nx + w.col[t]]);
+    return gz;
   };
   // Remove slot j from W (its multiplier is at a bound already): shift the slots and the pending
   // column behind it, restore the triangular Gram factor by Givens rotations.
   auto remove_slot = [&](int j, bool pending) {
     const int last = p + (pending ? 1 : 0);
-    std::memmove(Mw + static_cast<size_t>(j) * n, Mw + static_cast<size_t>(j + 1) * n, sizeof(double) * n * (last - j - 1));
+    std::memmove(Uw + static_cast<size_t>(j) * n, Uw + static_cast<size_t>(j + 1) * n, sizeof(double) * n * (last - j - 1));
     for (int s = j; s + 1 < p; ++s) {
       a.slot_row[s] = a.slot_row[s + 1], a.e[s] = a.e[s + 1], a.lam[s] = a.lam[s + 1];
       std::memcpy(Kl + static_cast<size_t>(s) * cap, Kl + static_cast<size_t>(s + 1) * cap, sizeof(double) * (s + 2));
@@ -585,16 +600,14 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
       Kr[r + 1] = 0.0;
     }
   };
-  // The primal point of the current multipliers: v = -(c + M lam), u = L^-T v, the states, G z.
+  // The primal point of the current multipliers: u = uc - U_W lam, the states.
   auto primal = [&]() {
-    for (int k = 0; k < n; ++k) a.v[k] = -a.c[k];
+    std::copy(a.uc.begin(), a.uc.end(), w.u);
     for (int s = 0; s < p; ++s) {
-      const double* m = Mw + static_cast<size_t>(s) * n;
+      const double* U = Uw + static_cast<size_t>(s) * n;
       const double ls = a.lam[s];
-      for (int k = 0; k < n; ++k) a.v[k] -= ls * m[k];
+      for (int k = 0; k < n; ++k) w.u[k] -= ls * U[k];
     }
-    for (int r = 0; r < n; ++r)  // u = Linv' v
-      w.u[r] = detail::dot(Linv + static_cast<size_t>(r) * n + r, a.v.data() + r, n - r);
     if (fixed)
       detail::FixedStage::rollout(a, qp, w.x, w.u, w.tm);
     else
@@ -650,30 +663,30 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   // there: the first pass moves them towards the dual minimiser on W and drops the rows whose
   // multiplier would leave its bounds, one change each. Near the docking port most rows of the
   // last solution stay active, so this saves rebuilding the working set one violated row at a time.
+  bool primal_current = false;  // w.u, w.x are the primal point of the current multipliers
   if (warm) {
     for (int k : a.active_rows)
       if (a.warm_state[k] == 2 && a.ub[k] > 0.0 && a.ub[k] < inf) {
-        double* m = Mw + static_cast<size_t>(p) * n;
-        condense_row(k, p);
         set_state(k, 2);
-        shift_c(k, m, a.ub[k]);
+        shift_uc(k, direction(k, 0), a.ub[k], false);
       }
+    primal();  // at lam = 0: the slack of each row taken in
+    primal_current = true;
     for (int k : a.active_rows) {
-      if (a.warm_state[k] != 1 || a.ub[k] == 0.0 || p >= n) continue;
-      double* m = Mw + static_cast<size_t>(p) * n;
-      const double h = condense_row(k, p);
-      if (!gram_append(k)) continue;
+      if (a.warm_state[k] != 1 || a.ub[k] == 0.0 || p >= n || !gram_append(k)) continue;
+      direction(k, p);
       a.slot_row[p] = k;
-      a.e[p] = h + dotn(m, a.c.data());
+      a.e[p] = w.dv[k] - row_value(k);
       a.lam[p] = 0.0;
       set_state(k, 1);
       ++p;
     }
-    need_primal = p == 0;
+    need_primal = primal_current = p == 0;
   }
   while (it < max_iter) {
     if (need_primal) {
-      primal();
+      if (!primal_current) primal();
+      primal_current = false;
       const int enter = most_violated();
       if (enter < 0) {
         st = Status::Solved;
@@ -685,8 +698,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
       }
       // Row `enter` becomes pending in column p; its multiplier starts at its bound.
       const bool from_upper = a.state[enter] == 2;
-      double* m = Mw + static_cast<size_t>(p) * n;
-      const double h = condense_row(enter, p);
+      double* U = direction(enter, p);
       ++it;
       // A soft row whose dual minimum along its own multiplier lies past the other bound
       // (violation >= ub |m|^2) goes there at once: one change instead of entering and leaving W.
@@ -694,14 +706,17 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
         const double viol = from_upper ? w.dv[enter] - w.gz[enter] : w.gz[enter] - w.dv[enter];
         if (viol >= a.ub[enter] * a.gram(w, enter, enter)) {
           set_state(enter, from_upper ? 0 : 2);
-          shift_c(enter, m, from_upper ? -a.ub[enter] : a.ub[enter]);
+          shift_uc(enter, U, from_upper ? -a.ub[enter] : a.ub[enter], false);
           need_primal = false;  // the working set's multipliers follow the new gradient
           continue;
         }
       }
-      if (from_upper) shift_c(enter, m, -a.ub[enter]);
+      // Its slack at lam = 0 on W: g'z at uc is g'z here plus W's multipliers' share, gbar'U_s lam_s.
+      double gz_uc = w.gz[enter];
+      for (int s = 0; s < p; ++s) gz_uc += a.lam[s] * a.gram(w, a.slot_row[s], enter);
       a.slot_row[p] = enter;
-      a.e[p] = h + dotn(m, a.c.data());
+      a.e[p] = w.dv[enter] - gz_uc;
+      if (from_upper) shift_uc(enter, U, -a.ub[enter], true);
       a.lam[p] = from_upper ? a.ub[enter] : 0.0;
       set_state(enter, 1);
       need_primal = false;
@@ -738,20 +753,20 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
         if (block == p) {  // the entering row itself reached its other bound: it leaves at once
           const bool upper = !from_upper;
           set_state(enter, upper ? 2 : 0);
-          if (upper) shift_c(enter, m, a.ub[enter]);
-          need_primal = true;  // v unchanged, but c moved with the saturated row: recompute
+          if (upper) shift_uc(enter, U, a.ub[enter], false);
+          need_primal = true;  // uc moved with the saturated row: recompute
           break;
         }
         const int row = a.slot_row[block];
         const bool upper = a.dir[block] > 0.0;
         set_state(row, upper ? 2 : 0);
-        const double lam_p = a.lam[p];
-        if (upper) shift_c(row, Mw + static_cast<size_t>(block) * n, a.ub[row]);
+        if (upper) shift_uc(row, Uw + static_cast<size_t>(block) * n, a.ub[row], true);
+        const double lam_p = a.lam[p], e_p = a.e[p];
         remove_slot(block, true);
-        m = Mw + static_cast<size_t>(p) * n;
+        U = Uw + static_cast<size_t>(p) * n;
         a.slot_row[p] = enter;
         a.lam[p] = lam_p;
-        a.e[p] = h + dotn(m, a.c.data());
+        a.e[p] = e_p;
         ++it;
       }
       if (st == Status::Infeasible) break;
@@ -783,7 +798,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     const int row = a.slot_row[block];
     const bool upper = a.lam_star[block] > a.ub[row];
     set_state(row, upper ? 2 : 0);
-    if (upper) shift_c(row, Mw + static_cast<size_t>(block) * n, a.ub[row]);
+    if (upper) shift_uc(row, Uw + static_cast<size_t>(block) * n, a.ub[row], false);
     remove_slot(block, false);
     ++it;
   }

@@ -6,8 +6,8 @@
 // 1/2 u'Hu + f'u + const and a row g'[u_i; x_i] <= d of stage i reads gbar'u <= d - c'x_free,i.
 // H and its Cholesky factor depend on A, B, Q, R only (fixed per guidance phase): they are computed
 // once and kept, with a copy of the data they came from; a solve whose A, B, Q or R differ
-// re-condenses in place (plain loops, no allocation). f, x_free and the condensed rows are per
-// solve; a row is condensed only when it enters the active set.
+// re-condenses in place (plain loops, no allocation). f and x_free are per solve; a row's input
+// direction H^-1 gbar is formed only when it enters the active set.
 // The rows' compressed form (the workspace's ptr/col/val) is kept too, with a copy of each stage's
 // C, D and soft-row data: a stage whose data are bytewise the same as last solve's keeps it (and
 // needs no finiteness check: the copy was checked); only d and x0 are read for it per solve.
@@ -28,26 +28,30 @@ struct ActiveSet {
   std::vector<int> go;        // Gamma: block (j, i), j > i, nx x nu_i column-major at go[i] + (j - i - 1) nx nu_i
   std::vector<double> gam;
   std::vector<double> L;      // Cholesky factor of H, n x n, row-major lower triangle
-  // Linv = L^-1 (column-major, n x n, lower) and per stage i >= 1 Wx_i = L^-1 Gamma_i' (column-major,
-  // n x nx, at i n nx; Gamma_i = dx_i/du): a row's m_k = L^-1 gbar_k is then a sum of nnz columns.
-  std::vector<double> Linv, Wx;
-  // Per pair of stages i <= j the products P_ij of the v-space columns their rows combine (stage i's
-  // are Linv's columns of u_i, then Wx_i's: nu_i + nx of them; P_ij row-major (nu_i + nx) x
-  // (nu_j + nx) at po[i (N + 1) + j]). A Gram entry m_s'm_k is then a sum over the two rows' few
-  // nonzeros (gram()), not a product of length n: the working set's Gram matrix costs O(p^2), not
-  // O(p^2 n). Per row 1 / |m_k| from P_ii (inf when m_k = 0): the entering row is the one farthest
-  // outside its half-space in v = L'u, (g'z - d) / |m_k|.
+  // Hinv = H^-1 (column-major, n x n) and per stage i >= 1 Yx_i = H^-1 Gamma_i' (column-major, n x nx,
+  // at i n nx; Gamma_i = dx_i/du): a row's input direction U_k = H^-1 gbar_k is then a sum of nnz
+  // columns. (condense() forms L^-1 and L^-1 Gamma_i' in their place first, for P.)
+  std::vector<double> Hinv, Yx;
+  // With m_k = L^-1 gbar_k (row k in v = L'u): per pair of stages i <= j the products P_ij of the
+  // v-space columns their rows combine (stage i's are L^-1's columns of u_i, then L^-1 Gamma_i''s:
+  // nu_i + nx of them; P_ij row-major (nu_i + nx) x (nu_j + nx) at po[i (N + 1) + j]). A Gram entry
+  // m_s'm_k = gbar_s'H^-1 gbar_k is then a sum over the two rows' few nonzeros (gram()), not a
+  // product of length n: the working set's Gram matrix costs O(p^2), not O(p^2 n). Per row 1 / |m_k|
+  // from P_ii (inf when m_k = 0): the entering row is the one farthest outside its half-space in
+  // v, (g'z - d) / |m_k|.
   std::vector<int> po, row_stage;
   std::vector<int> ent;  // per nonzero of the rows kept (w.col's positions): its column in P (c or nu_i + s)
   std::vector<double> P, inv_norm;
   // Per solve.
-  std::vector<double> f, c, xf, lamx;  // condensed gradient, c = L^-1 f (+ saturated soft rows), x_free, adjoint
-  std::vector<double> g;               // a condensed row (scratch)
-  // Active set: the rows whose multiplier is free (W, p of them, in slots), their v-space rows
-  // m_k = L^-1 gbar_k (columns of Mw, n each), the Cholesky factor Kl of the Gram matrix Mw'Mw
-  // (row-major, cap x cap), per slot the row index, e_k = h_k + m_k'c and the multiplier.
+  // condensed gradient f, x_free, adjoint; uc = -H^-1 (f + the saturated soft rows' zs gbar): the
+  // inputs at lam = 0 on W
+  std::vector<double> f, xf, lamx, uc;
+  // Active set: the rows whose multiplier is free (W, p of them, in slots), their input directions
+  // U_k = H^-1 gbar_k (columns of Uw, n each; the inputs are u = uc - U_W lam), the Cholesky factor
+  // Kl of the Gram matrix M_W'M_W = G_W H^-1 G_W' (row-major, cap x cap), per slot the row index,
+  // e_k = d_k - g_k'z at uc (the row's slack at lam = 0) and the multiplier.
   int cap = 0;
-  std::vector<double> Mw, Kl, e, lam, lam_star, dir, v, tmp;
+  std::vector<double> Uw, Kl, e, lam, lam_star, dir, tmp;
   std::vector<int> slot_row;
   std::vector<signed char> state;  // per row: 0 multiplier 0, 1 in W, 2 at its upper bound (soft row, zs)
   std::vector<double> ub;          // per row: multiplier bound (zs on soft rows, inf on hard rows; kept with the rows)
