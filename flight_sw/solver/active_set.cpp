@@ -654,6 +654,15 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     return true;
   };
 
+  // y <- Kl^-T y on W's p slots, along Kl's rows (row-major: contiguous axpys, not strided columns).
+  auto back_solve = [&](double* y) {
+    for (int s = p - 1; s >= 0; --s) {
+      const double* Ks = Kl + static_cast<size_t>(s) * cap;
+      const double ys = y[s] /= Ks[s];
+      for (int t = 0; t < s; ++t) y[t] -= Ks[t] * ys;
+    }
+  };
+
   Status st = Status::MaxIter;
   int it = 0;
   bool need_primal = true;
@@ -729,11 +738,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
         }
         // Singular: p_k = +-1, p_W = -Kl^-T l p_k keeps M p = 0.
         const double pk = from_upper ? -1.0 : 1.0;
-        for (int s = p - 1; s >= 0; --s) {
-          double acc = -Kp[s] * pk;
-          for (int t = s + 1; t < p; ++t) acc -= Kl[static_cast<size_t>(t) * cap + s] * a.dir[t];
-          a.dir[s] = acc / Kl[static_cast<size_t>(s) * cap + s];
-        }
+        for (int s = 0; s < p; ++s) a.dir[s] = -Kp[s] * pk;
+        back_solve(a.dir.data());
         double alpha = from_upper ? a.lam[p] : (a.ub[enter] - a.lam[p]);
         int block = p;
         double dmax = 1.0;
@@ -777,11 +783,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
       const double* Ks = Kl + static_cast<size_t>(s) * cap;
       a.tmp[s] = (-a.e[s] - detail::dot(Ks, a.tmp.data(), s)) / Ks[s];
     }
-    for (int s = p - 1; s >= 0; --s) {
-      double acc = a.tmp[s];
-      for (int t = s + 1; t < p; ++t) acc -= Kl[static_cast<size_t>(t) * cap + s] * a.lam_star[t];
-      a.lam_star[s] = acc / Kl[static_cast<size_t>(s) * cap + s];
-    }
+    std::copy(a.tmp.begin(), a.tmp.begin() + p, a.lam_star.begin());
+    back_solve(a.lam_star.data());
     double alpha = 1.0;
     int block = -1;
     for (int s = 0; s < p; ++s) {
