@@ -142,6 +142,31 @@ def test_many_states_per_input_go_to_the_interior_point(nx, by_active):
     agrees(qp, res, reference(qp))
 
 
+@pytest.mark.parametrize("phase", list(GENERATORS))
+def test_rows_kept_with_more_nonzeros_than_a_period_has(phase):
+    """setup() keeps the rows with its QP's nonzeros. A later QP whose nonzeros are among them takes
+    its values in place, zeros included where a kept entry is zero now (a cone facet that lines up
+    with an axis, a row switched off to 0 <= 1): here the rows are kept with every position entry
+    nonzero, and the QP solved has one input bound of stage 1 switched off (a kept single-input row
+    whose entry is zero now). The answers must be ProxSuite's for the QP solved."""
+    for N in (5, 12):
+        for seed in range(3):
+            qp = make(phase, N, 700 + 10 * N + seed)
+            D, d = [m.copy() for m in qp.D], [v.copy() for v in qp.d]
+            box = next(r for r in range(D[1].shape[0]) if np.count_nonzero(D[1][r]) == 1 and not np.any(qp.C[1][r]))
+            D[1][box] = 0.0
+            d[1][box] = 1.0
+            period = dataclasses.replace(qp, D=D, d=d)
+            wide_C = [np.hstack([np.where(c[:, :3] == 0.0, 1.0, c[:, :3]), c[:, 3:]]) for c in qp.C]
+            wide = dataclasses.replace(qp, C=wide_C)
+            s = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode="converged", tol=1e-8,
+                                    warm_start=False)
+            s.setup(*wide.args()[:-1], **wide.kw())
+            res = s.solve(*period.args(), **period.kw())
+            assert by_active_set(res), (res.iterations, res.active_set_changes)
+            agrees(period, res, reference(period))
+
+
 def test_changed_dynamics_and_weights_are_condensed_again():
     """One solver, set up for one QP, then given QPs with other A, B, Q, R (another period, other
     weights): each answer is the optimum of the QP given, not of the one condensed at setup."""

@@ -204,19 +204,19 @@ bool ActiveSet::same_pattern(Workspace& w, const OcpQp& qp, int i) {
     return false;
   const Matrix &C = qp.C[i], &D = qp.D[i];
   for (int j = 0, k = w.ro[i]; k < w.ro[i + 1]; ++j, ++k) {
-    int t = w.ptr[k];
-    for (int c = 0; c < nu[i]; ++c)
-      if (D(j, c) != 0.0) {
-        if (t == w.mid[k] || w.col[t] != c) return false;
-        w.val[t++] = D(j, c);
-      }
-    if (t != w.mid[k]) return false;
-    for (int c = 0; c < nx; ++c)
-      if (C(j, c) != 0.0) {
-        if (t == w.ptr[k + 1] || w.col[t] != c) return false;
+    int t = w.ptr[k];  // (the kept entries of a row are in column order: inputs, then states)
+    for (int c = 0; c < nu[i]; ++c) {
+      if (t < w.mid[k] && w.col[t] == c)
+        w.val[t++] = D(j, c);  // a kept entry, zero now or not
+      else if (D(j, c) != 0.0)
+        return false;  // a nonzero the kept rows do not hold
+    }
+    for (int c = 0; c < nx; ++c) {
+      if (t < w.ptr[k + 1] && w.col[t] == c)
         w.val[t++] = C(j, c);
-      }
-    if (t != w.ptr[k + 1]) return false;
+      else if (C(j, c) != 0.0)
+        return false;
+    }
   }
   std::copy(C.data(), C.data() + C.size(), Cc.data() + co[i]);
   std::copy(D.data(), D.data() + D.size(), Dc.data() + doff[i]);
@@ -503,7 +503,9 @@ bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
   std::fill(w.lb_row, w.lb_row + w.inputs, -1);
   for (size_t b = 0; b < a.bound_rows.size(); ++b) {
     const int k = a.bound_rows[b], c = a.bound_col[b];
-    const double val = w.val[w.ptr[k]], bound = w.dv[k] / val;
+    const double val = w.val[w.ptr[k]];
+    if (val == 0.0) continue;  // a kept entry that is zero this period: no bound
+    const double bound = w.dv[k] / val;
     int& slot = val > 0.0 ? w.ub_row[c] : w.lb_row[c];
     if (slot < 0) {
       slot = k;

@@ -87,8 +87,10 @@ struct ActiveSet {
   bool same_data(const OcpQp& qp) const;
   // Stage i's C, D and soft-row data equal the copy kept with the rows.
   bool same_rows(const OcpQp& qp, int i) const;
-  // Stage i's C, D have the nonzeros of the rows kept (and its soft rows are the same): their values
-  // replace the kept ones in the workspace and the copy. False (values partly written) otherwise.
+  // Stage i's nonzeros in C, D are among the entries of the rows kept (and its soft rows are the
+  // same): their values (zeros included, where a kept entry is zero now) replace the kept ones in the
+  // workspace and the copy. False (values partly written) otherwise. So rows kept with a pattern
+  // wider than a period's (a caller's structural fill, FastMpcSolver::setup) take that period as is.
   bool same_pattern(Workspace& w, const OcpQp& qp, int i);
   // Keep the rows the workspace holds now (after prepare_rows) with the QP's data they came from.
   void keep_rows(const Workspace& w, const OcpQp& qp);

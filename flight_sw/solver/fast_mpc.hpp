@@ -53,6 +53,9 @@ class FastMpcSolver {
   Status solve(const OcpQp& qp, const Vector& x0);  // no heap allocation; never throws; fills info()
   // Condense the QP's A, B, Q, R for the dual active-set method and prepare its rows ahead of the
   // first solve (solve() does both itself, without allocating, when they differ from the last ones).
+  // The rows are kept with qp's nonzero pattern: a later QP whose nonzeros are among those (values
+  // changed, some zero) takes the fast path, any other nonzero prepares the rows again. A caller
+  // whose rows change per period can pass a structural fill (nonzeros wherever a period may put one).
   void setup(const OcpQp& qp);
   const Info& info() const { return info_; }
   const std::vector<Vector>& x() const { return x_; }  // N+1 states of the last solve

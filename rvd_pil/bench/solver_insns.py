@@ -10,7 +10,8 @@ Per (target, phase, N): solves, mean and max instructions per solve, mean iterat
 estimated target time (the closed-loop goal: <= 2), the ratio to the earlier figures where the
 earlier campaign measured them (rpi3 means of `make pil` before the change), and which solve was
 the largest: its run's step, "first" when it was the phase's first solve of that run (a cold start
-unless a look-ahead prepared it), and its interior-point iterations when it ran any.
+unless a look-ahead prepared it), and its interior-point iterations when it ran any, or the rows its
+active-set method changed (the law's logged value, law_values.csv).
 """
 from __future__ import annotations
 
@@ -23,6 +24,17 @@ from rvd_pil import paths
 
 # `make pil` before the change, rpi3 (Cortex-A53) means of instructions per solve.
 EARLIER_MEAN = {("rpi3", "rendezvous", 30): 2.73e6, ("rpi3", "approach", 15): 5.42e6, ("rpi3", "docking", 12): 0.92e6}
+
+
+def logged_value(run_dir: Path, step: int, name: str) -> float | None:
+    """The value the law logged under `name` at `step` of a run (law_values.csv), None when it logged none."""
+    import pandas as pd
+    path = run_dir / "law_values.csv"
+    if not path.exists() or path.stat().st_size == 0:
+        return None
+    vals = pd.read_csv(path)
+    hit = vals[(vals["step"] == step) & (vals["name"] == name)]
+    return float(hit["value"].iloc[0]) if len(hit) else None
 
 
 def main(argv=None) -> int:
@@ -53,6 +65,8 @@ def main(argv=None) -> int:
         where = f"{worst['scenario_label']} step {int(worst['step'])}" + (" (first)" if first else "")
         if worst["iterations"] > 0:
             where += f", {int(worst['iterations'])} it"
+        elif (changes := logged_value(out / worst["run"], int(worst["step"]), "active_set_changes")) is not None:
+            where += f", {changes:.0f} changes"
         print(f"{target:<7}{phase:<11}{int(n):>4}{len(g):>8}{mean / 1e6:>11.2f}M{g['instructions'].max() / 1e6:>11.2f}M"
               f"{g['iterations'].mean():>9.1f}{ratio:>14.2f}{vs:>12}  {where}")
     print("vs earlier: change of the mean against `make pil` before the change (rpi3; the other cells were not "
