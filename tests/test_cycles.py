@@ -211,7 +211,7 @@ def test_microbenchmarks_reproduce_published_timings(libs, cpu, tmp_path):
     tname, build_cpu = microbench.CPUS[cpu]
     t = targets.load(tname, cpu=build_cpu)
     if not shutil.which(t.compiler):
-        pytest.skip(f"{t.compiler} missing")
+        pytest.skip(f"{t.compiler} missing: run tools/install-deps pil")
     results = microbench.measure(cpu, workdir=tmp_path)
     assert [r.kernel for r in results] == list(microbench.KERNELS)
     published = [r for r in results if r.published is not None]
@@ -344,7 +344,7 @@ def test_calibration_factor_is_applied_and_marked(libs, tmp_path, monkeypatch):
 
     t = targets.load("rpi3")
     if not shutil.which(t.compiler):
-        pytest.skip(f"{t.compiler} missing")
+        pytest.skip(f"{t.compiler} missing: run tools/install-deps pil")
     pred = calibrate.prepare("rpi3", out=tmp_path)
     run = tmp_path / "rpi3" / pred["qemu_run"]
     perf = tmp_path / "perf.csv"

@@ -51,6 +51,15 @@ inline double dot(const double* x, const double* y, int n) {
   for (; k < n; ++k) s0 += x[k] * y[k];
   return (s0 + s1) + (s2 + s3);
 }
+// y <- L^-T y for a lower triangular L of size n stored by rows `stride` apart: back substitution
+// along L's rows (contiguous axpys, not strided column reads).
+void solve_lt(const double* L, size_t stride, int n, double* y) {
+  for (int t = n - 1; t >= 0; --t) {
+    const double* Lt = L + static_cast<size_t>(t) * stride;
+    const double yt = y[t] /= Lt[t];
+    for (int r = 0; r < t; ++r) y[r] -= Lt[r] * yt;
+  }
+}
 void append(std::vector<double>& out, const Matrix& M) {
   if (M.size() > 0) out.insert(out.end(), M.data(), M.data() + M.size());
 }
@@ -274,16 +283,8 @@ void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
 }
 
 void ActiveSet::row_norms(const Workspace& w, int i) {
-  const int m = nu[i] + nx;
-  const double* Pi = P.data() + po[i * (N + 1) + i];
   for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
-    // |m_k|^2 = e' P_i e over the row's entries (index c for input c, nu_i + s for state s).
-    double sq = 0.0;
-    for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) {
-      double acc = 0.0;
-      for (int t2 = w.ptr[k]; t2 < w.ptr[k + 1]; ++t2) acc += Pi[ent[t] * m + ent[t2]] * w.val[t2];
-      sq += w.val[t] * acc;
-    }
+    const double sq = gram(w, k, k);
     inv_norm[k] = sq > 0.0 ? 1.0 / std::sqrt(sq) : std::numeric_limits<double>::infinity();  // no input moves it: first
   }
 }
@@ -422,17 +423,9 @@ bool ActiveSet::condense(const OcpQp& qp) {
       for (int a = 0; a < mi; ++a)
         for (int b = 0; b < mj; ++b) Pij[a * mj + b] = i == j && b < a ? Pij[b * mj + a] : dot(column(i, a), column(j, b), n);
     }
-  // Each column y becomes L^-T y in place (L'z = y, back substitution along L's rows): L^-1's into
-  // H^-1's, L^-1 Gamma_i''s into H^-1 Gamma_i''s.
-  auto back_substitute = [&](double* y) {
-    for (int t = n - 1; t >= 0; --t) {
-      const double* Lt = L.data() + static_cast<size_t>(t) * n;
-      const double yt = y[t] /= Lt[t];
-      for (int r = 0; r < t; ++r) y[r] -= Lt[r] * yt;
-    }
-  };
-  for (int j = 0; j < n; ++j) back_substitute(Linv + static_cast<size_t>(j) * n);
-  for (int c = nx; c < (N + 1) * nx; ++c) back_substitute(Wx + static_cast<size_t>(c) * n);
+  // Each column y becomes L^-T y in place: L^-1's into H^-1's, L^-1 Gamma_i''s into H^-1 Gamma_i''s.
+  for (int j = 0; j < n; ++j) solve_lt(L.data(), n, n, Linv + static_cast<size_t>(j) * n);
+  for (int c = nx; c < (N + 1) * nx; ++c) solve_lt(L.data(), n, n, Wx + static_cast<size_t>(c) * n);
   condensed = true;
   return true;
 }
@@ -573,13 +566,6 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     }
     return U;
   };
-  // g_k'z of row k at the primal point in w.u, w.x.
-  auto row_value = [&](int k) {
-    const int i = a.row_stage[k];
-    double gz = 0.0;
-    for (int t = w.ptr[k]; t < w.ptr[k + 1]; ++t) gz += w.val[t] * (t < w.mid[k] ? w.u[a.uo[i] + w.col[t]] : w.x[i * nx + w.col[t]]);
-    return gz;
-  };
   // Remove slot j from W (its multiplier is at a bound already): shift the slots and the pending
   // column behind it, restore the triangular Gram factor by Givens rotations.
   auto remove_slot = [&](int j, bool pending) {
@@ -656,15 +642,6 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     return true;
   };
 
-  // y <- Kl^-T y on W's p slots, along Kl's rows (row-major: contiguous axpys, not strided columns).
-  auto back_solve = [&](double* y) {
-    for (int s = p - 1; s >= 0; --s) {
-      const double* Ks = Kl + static_cast<size_t>(s) * cap;
-      const double ys = y[s] /= Ks[s];
-      for (int t = 0; t < s; ++t) y[t] -= Ks[t] * ys;
-    }
-  };
-
   Status st = Status::MaxIter;
   int it = 0;
   bool need_primal = true;
@@ -686,8 +663,9 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     for (int k : a.active_rows) {
       if (a.warm_state[k] != 1 || a.ub[k] == 0.0 || p >= n || !gram_append(k)) continue;
       direction(k, p);
+      const int i = a.row_stage[k];
       a.slot_row[p] = k;
-      a.e[p] = w.dv[k] - row_value(k);
+      a.e[p] = w.dv[k] - detail::g_row(w, k, w.u + a.uo[i], w.x + i * nx);  // its slack at lam = 0
       a.lam[p] = 0.0;
       set_state(k, 1);
       ++p;
@@ -741,7 +719,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
         // Singular: p_k = +-1, p_W = -Kl^-T l p_k keeps M p = 0.
         const double pk = from_upper ? -1.0 : 1.0;
         for (int s = 0; s < p; ++s) a.dir[s] = -Kp[s] * pk;
-        back_solve(a.dir.data());
+        detail::solve_lt(Kl, cap, p, a.dir.data());
         double alpha = from_upper ? a.lam[p] : (a.ub[enter] - a.lam[p]);
         int block = p;
         double dmax = 1.0;
@@ -786,7 +764,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
       a.tmp[s] = (-a.e[s] - detail::dot(Ks, a.tmp.data(), s)) / Ks[s];
     }
     std::copy(a.tmp.begin(), a.tmp.begin() + p, a.lam_star.begin());
-    back_solve(a.lam_star.data());
+    detail::solve_lt(Kl, cap, p, a.lam_star.data());
     double alpha = 1.0;
     int block = -1;
     for (int s = 0; s < p; ++s) {

@@ -55,7 +55,8 @@ class FastMpcSolver {
   // first solve (solve() does both itself, without allocating, when they differ from the last ones).
   // The rows are kept with qp's nonzero pattern: a later QP whose nonzeros are among those (values
   // changed, some zero) takes the fast path, any other nonzero prepares the rows again. A caller
-  // whose rows change per period can pass a structural fill (nonzeros wherever a period may put one).
+  // whose rows change per period can pass a structural fill (nonzeros wherever a period may put one),
+  // at the cost of carrying its zeros through every later solve.
   void setup(const OcpQp& qp);
   const Info& info() const { return info_; }
   const std::vector<Vector>& x() const { return x_; }  // N+1 states of the last solve

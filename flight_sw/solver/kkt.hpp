@@ -46,14 +46,16 @@ const Kernels& kernels_for(const Workspace& w);
 // constant soft row is only a constant cost.
 bool prepare_rows(Workspace& w, const OcpQp& qp, double tol);
 
+// G_k [u; x] of row k, with u and x its stage's inputs and states.
+inline double g_row(const Workspace& w, int k, const double* u, const double* x) {
+  double acc = 0.0;
+  for (int a = w.ptr[k]; a < w.mid[k]; ++a) acc += w.val[a] * u[w.col[a]];
+  for (int a = w.mid[k]; a < w.ptr[k + 1]; ++a) acc += w.val[a] * x[w.col[a]];
+  return acc;
+}
 // out[k] = G_k [u; x] over the rows of stage i (0 on constant rows).
 inline void g_mul(const Workspace& w, int i, const double* u, const double* x, double* out) {
-  for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
-    double acc = 0.0;
-    for (int a = w.ptr[k]; a < w.mid[k]; ++a) acc += w.val[a] * u[w.col[a]];
-    for (int a = w.mid[k]; a < w.ptr[k + 1]; ++a) acc += w.val[a] * x[w.col[a]];
-    out[k] = acc;
-  }
+  for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) out[k] = g_row(w, k, u, x);
 }
 // out_u += D_i' v, and out_x += C_i' v unless out_x is null, over the rows of stage i.
 inline void gt_mul_add(const Workspace& w, int i, const double* v, double* out_u, double* out_x) {
