@@ -142,6 +142,24 @@ def test_many_states_per_input_go_to_the_interior_point(nx, by_active):
     agrees(qp, res, reference(qp))
 
 
+@pytest.mark.parametrize("N", [5, 12, 30])
+def test_the_arena_holds_the_condensed_qp(N):
+    """One arena holds all the solver's working memory: with the active-set method (the guidance's
+    docking shape, nx = 6, nu = 3) it is larger than the interior point's alone by at least what
+    the condensed QP's largest arrays need, 8 bytes per double: the stage-pair products (sum over
+    i <= j of (nu_i + nx)(nu_j + nx)), H^-1 and its Cholesky factor (n^2 each, n = 3 N inputs) and
+    H^-1 Gamma_i' ((N + 1) n nx)."""
+    nx, nu = 6, [3] * N + [0]
+    nc = [16] * (N + 1)
+    both = flight_sw.OcpSolver(nx, nu, nc, None)
+    ipm = flight_sw.OcpSolver(nx, nu, nc, None, mode="interior_point")
+    n, widths = sum(nu), [m + nx for m in nu]
+    pairs = sum(widths[i] * widths[j] for i in range(N + 1) for j in range(i, N + 1))
+    least = 8 * (pairs + 2 * n * n + (N + 1) * n * nx)
+    assert both.workspace_bytes - ipm.workspace_bytes >= least
+    assert ipm.workspace_bytes > 8 * (N + 1) * nx * nx  # the cost-to-go matrices at least
+
+
 @pytest.mark.parametrize("phase", list(GENERATORS))
 def test_rows_kept_with_more_nonzeros_than_a_period_has(phase):
     """setup() keeps the rows with its QP's nonzeros. A later QP whose nonzeros are among them takes

@@ -322,6 +322,9 @@ gives status 'invalid_input'.)doc");
            "shift the last plan one stage: the warm start for the next control period")
       .def("reset_warm_start", [](PyOcpSolver& s) { s.solver().reset_warm_start(); })
       .def_property_readonly("N", [](PyOcpSolver& s) { return s.solver().dims().N; })
+      .def_property_readonly("workspace_bytes", [](PyOcpSolver& s) { return s.solver().workspace_bytes(); },
+                             "bytes of the one arena the constructor allocated: the interior point's iterate and "
+                             "factors, and the active-set method's condensed QP when it is built")
       .def_property(
           "time_limit_us", [](PyOcpSolver& s) { return s.solver().settings().time_limit_us; },
           [](PyOcpSolver& s, double v) { s.solver().settings().time_limit_us = v; })

@@ -60,8 +60,8 @@ void solve_lt(const double* L, size_t stride, int n, double* y) {
     for (int r = 0; r < t; ++r) y[r] -= Lt[r] * yt;
   }
 }
-void append(std::vector<double>& out, const Matrix& M) {
-  if (M.size() > 0) out.insert(out.end(), M.data(), M.data() + M.size());
+void append(Array<double>& out, const Matrix& M) {  // (shapes checked: within the capacity)
+  for (long k = 0; k < M.size(); ++k) out.push_back(M.data()[k]);
 }
 bool equal(const double* a, const double* b, size_t n) {
   return n == 0 || std::memcmp(a, b, sizeof(double) * n) == 0;  // (an empty block has no data)
@@ -138,57 +138,61 @@ using AnyStage = Stage<Eigen::Dynamic, Eigen::Dynamic>;
 
 }  // namespace
 
-ActiveSet::ActiveSet(const OcpQpDims& d) : N(d.N), nx(d.nx), nu(d.nu) {
-  uo.assign(N + 2, 0);
-  for (int i = 0; i <= N; ++i) uo[i + 1] = uo[i] + nu[i];
-  n = uo[N + 1];
-  for (int i = 0; i <= N; ++i) rows += d.nc[i];
-  go.assign(N + 1, 0);
-  size_t blocks = 0;
-  for (int i = 0; i <= N; ++i) go[i] = static_cast<int>(blocks), blocks += static_cast<size_t>(N - i) * nx * nu[i];
-  gam.assign(blocks, 0.0);
-  size_t a = 0, b = 0, q = 0, r = 0;
+ActiveSet::ActiveSet(const OcpQpDims& d) : dims(d), N(d.N), nx(d.nx) {
+  for (int i = 0; i <= N; ++i) n += d.nu[i], rows += d.nc[i];
+  cap = n + 1;
+}
+
+void ActiveSet::carve(Arena& arena) {
+  const OcpQpDims& d = dims;
+  const size_t n1 = static_cast<size_t>(N) + 1, un = static_cast<size_t>(n), nr = static_cast<size_t>(rows);
+  arena.take(nu, n1), arena.take(uo, n1 + 1);
+  size_t blocks = 0, a = 0, b = 0, q = 0, r = 0, pairs = 0, cs = 0, ds = 0, ss = 0;
+  int nu_max = 0;
   for (int i = 0; i <= N; ++i) {
-    if (i < N) a += nx * nx, b += nx * nu[i];
-    q += nx * nx, r += nu[i] * nu[i];
+    blocks += static_cast<size_t>(N - i) * nx * d.nu[i];
+    if (i < N) a += nx * nx, b += nx * d.nu[i];
+    q += nx * nx, r += d.nu[i] * d.nu[i];
+    for (int j = i; j <= N; ++j) pairs += static_cast<size_t>(d.nu[i] + nx) * (d.nu[j] + nx);
+    cs += static_cast<size_t>(d.nc[i]) * nx, ds += static_cast<size_t>(d.nc[i]) * d.nu[i], ss += d.soft_rows(i);
+    nu_max = std::max(nu_max, d.nu[i]);
   }
-  A.reserve(a), B.reserve(b), Q.reserve(q), R.reserve(r);
-  L.assign(static_cast<size_t>(n) * n, 0.0);
-  Hinv.assign(static_cast<size_t>(n) * n, 0.0);
-  Yx.assign(static_cast<size_t>(N + 1) * n * nx, 0.0);
-  f.assign(n, 0.0), uc.assign(n, 0.0), tmp.assign(std::max(n + 1, nx), 0.0);
-  xf.assign(static_cast<size_t>(N + 1) * nx, 0.0), lamx.assign(static_cast<size_t>(N + 1) * nx, 0.0);
-  po.assign(static_cast<size_t>(N + 1) * (N + 1), 0);
-  size_t pairs = 0;
+  arena.take(A, a, true), arena.take(B, b, true), arena.take(Q, q, true), arena.take(R, r, true);
+  arena.take(go, n1), arena.take(gam, blocks);
+  arena.take(L, un * un), arena.take(Hinv, un * un), arena.take(Yx, n1 * un * nx);
+  arena.take(f, un), arena.take(uc, un), arena.take(tmp, std::max(un + 1, static_cast<size_t>(nx)));
+  arena.take(xf, n1 * nx), arena.take(lamx, n1 * nx);
+  arena.take(po, n1 * n1), arena.take(P, pairs);  // (pairs == pair_products(d))
+  arena.take(row_stage, nr), arena.take(inv_norm, nr);
+  const size_t c = static_cast<size_t>(cap), nnz = nr * (nx + nu_max);
+  arena.take(Uw, c * un), arena.take(Kl, c * c);
+  arena.take(e, c), arena.take(lam, c), arena.take(lam_star, c), arena.take(dir, c), arena.take(slot_row, c);
+  arena.take(state, nr), arena.take(warm_state, nr), arena.take(ub, nr);
+  arena.take(co, n1 + 1), arena.take(doff, n1 + 1), arena.take(so, n1 + 1);
+  arena.take(Cc, cs), arena.take(Dc, ds), arena.take(zsc, ss), arena.take(Zsc, ss), arena.take(idxc, ss);
+  arena.take(stage_same, n1), arena.take(flags, 3 * n1);
+  for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &one_row, &one_pos, &multi_row, &multi_end})
+    arena.take(*list, nr, true);
+  arena.take(one_src, nr, true);
+  arena.take(multi_pos, nnz, true), arena.take(multi_src, nnz, true);
+  arena.take(ent, nnz);
+}
+
+void ActiveSet::init() {
+  const OcpQpDims& d = dims;
+  for (int i = 0; i <= N; ++i) nu[i] = d.nu[i], uo[i + 1] = uo[i] + nu[i];
+  size_t blocks = 0, pairs = 0;
+  for (int i = 0; i <= N; ++i) go[i] = static_cast<int>(blocks), blocks += static_cast<size_t>(N - i) * nx * nu[i];
   for (int i = 0; i <= N; ++i)
     for (int j = i; j <= N; ++j) po[i * (N + 1) + j] = static_cast<int>(pairs), pairs += static_cast<size_t>(nu[i] + nx) * (nu[j] + nx);
-  P.assign(pairs, 0.0);  // (pairs == pair_products(d))
-  for (int i = 0; i <= N; ++i) row_stage.insert(row_stage.end(), d.nc[i], i);
-  inv_norm.assign(rows, 0.0);
-  cap = n + 1;
-  Uw.assign(static_cast<size_t>(cap) * n, 0.0);
-  Kl.assign(static_cast<size_t>(cap) * cap, 0.0);
-  e.assign(cap, 0.0), lam.assign(cap, 0.0), lam_star.assign(cap, 0.0), dir.assign(cap, 0.0);
-  slot_row.assign(cap, -1);
-  state.assign(rows, 0);
-  warm_state.assign(rows, 0);
-  ub.assign(rows, 0.0);
-  co.assign(N + 2, 0), doff.assign(N + 2, 0), so.assign(N + 2, 0);
+  for (int i = 0, k = 0; i <= N; ++i)
+    for (int j = 0; j < d.nc[i]; ++j) row_stage[k++] = i;
+  std::fill(slot_row.begin(), slot_row.end(), -1);
   for (int i = 0; i <= N; ++i) {
     co[i + 1] = co[i] + d.nc[i] * nx;
     doff[i + 1] = doff[i] + d.nc[i] * nu[i];
     so[i + 1] = so[i] + d.soft_rows(i);
   }
-  Cc.assign(co[N + 1], 0.0), Dc.assign(doff[N + 1], 0.0), zsc.assign(so[N + 1], 0.0), Zsc.assign(so[N + 1], 0.0);
-  idxc.assign(so[N + 1], 0);
-  stage_same.assign(N + 1, 0);
-  flags.assign(3 * (N + 1), 0);
-  for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &one_row, &one_pos, &multi_row, &multi_end})
-    list->reserve(rows);
-  one_src.reserve(rows);
-  multi_pos.reserve(static_cast<size_t>(rows) * (d.nx + *std::max_element(nu.begin(), nu.end())));
-  ent.assign(multi_pos.capacity(), 0);
-  multi_src.reserve(multi_pos.capacity());
 }
 
 size_t ActiveSet::pair_products(const OcpQpDims& d) {

@@ -13,25 +13,24 @@
 // needs no finiteness check: the copy was checked); only d and x0 are read for it per solve.
 #pragma once
 
-#include <vector>
-
 #include "flight_sw/solver/ocp_qp.hpp"
 #include "flight_sw/solver/workspace.hpp"
 
 namespace rvd::solver::detail {
 
 struct ActiveSet {
+  OcpQpDims dims;
   int N = 0, nx = 0, n = 0, rows = 0;
-  std::vector<int> nu, uo;  // inputs of stage i and their offset in u
+  Array<int> nu, uo;  // inputs of stage i and their offset in u
   bool condensed = false;   // H, its factor and Gamma are those of the cached A, B, Q, R
-  std::vector<double> A, B, Q, R;  // the data condensed (flat, stage after stage), to detect a change
-  std::vector<int> go;        // Gamma: block (j, i), j > i, nx x nu_i column-major at go[i] + (j - i - 1) nx nu_i
-  std::vector<double> gam;
-  std::vector<double> L;      // Cholesky factor of H, n x n, row-major lower triangle
+  Array<double> A, B, Q, R;  // the data condensed (flat, stage after stage), to detect a change
+  Array<int> go;        // Gamma: block (j, i), j > i, nx x nu_i column-major at go[i] + (j - i - 1) nx nu_i
+  Array<double> gam;
+  Array<double> L;      // Cholesky factor of H, n x n, row-major lower triangle
   // Hinv = H^-1 (column-major, n x n) and per stage i >= 1 Yx_i = H^-1 Gamma_i' (column-major, n x nx,
   // at i n nx; Gamma_i = dx_i/du): a row's input direction U_k = H^-1 gbar_k is then a sum of nnz
   // columns. (condense() forms L^-1 and L^-1 Gamma_i' in their place first, for P.)
-  std::vector<double> Hinv, Yx;
+  Array<double> Hinv, Yx;
   // With m_k = L^-1 gbar_k (row k in v = L'u): per pair of stages i <= j the products P_ij of the
   // v-space columns their rows combine (stage i's are L^-1's columns of u_i, then L^-1 Gamma_i''s:
   // nu_i + nx of them; P_ij row-major (nu_i + nx) x (nu_j + nx) at po[i (N + 1) + j]). A Gram entry
@@ -39,46 +38,50 @@ struct ActiveSet {
   // product of length n: the working set's Gram matrix costs O(p^2), not O(p^2 n). Per row 1 / |m_k|
   // from P_ii (inf when m_k = 0): the entering row is the one farthest outside its half-space in
   // v, (g'z - d) / |m_k|.
-  std::vector<int> po, row_stage;
-  std::vector<int> ent;  // per nonzero of the rows kept (w.col's positions): its column in P (c or nu_i + s)
-  std::vector<double> P, inv_norm;
+  Array<int> po, row_stage;
+  Array<int> ent;  // per nonzero of the rows kept (w.col's positions): its column in P (c or nu_i + s)
+  Array<double> P, inv_norm;
   // Per solve.
   // condensed gradient f, x_free, adjoint; uc = -H^-1 (f + the saturated soft rows' zs gbar): the
   // inputs at lam = 0 on W
-  std::vector<double> f, xf, lamx, uc;
+  Array<double> f, xf, lamx, uc;
   // Active set: the rows whose multiplier is free (W, p of them, in slots), their input directions
   // U_k = H^-1 gbar_k (columns of Uw, n each; the inputs are u = uc - U_W lam), the Cholesky factor
   // Kl of the Gram matrix M_W'M_W = G_W H^-1 G_W' (row-major, cap x cap), per slot the row index,
   // e_k = d_k - g_k'z at uc (the row's slack at lam = 0) and the multiplier.
   int cap = 0;
-  std::vector<double> Uw, Kl, e, lam, lam_star, dir, tmp;
-  std::vector<int> slot_row;
-  std::vector<signed char> state;  // per row: 0 multiplier 0, 1 in W, 2 at its upper bound (soft row, zs)
-  std::vector<double> ub;          // per row: multiplier bound (zs on soft rows, inf on hard rows; kept with the rows)
+  Array<double> Uw, Kl, e, lam, lam_star, dir, tmp;
+  Array<int> slot_row;
+  Array<signed char> state;  // per row: 0 multiplier 0, 1 in W, 2 at its upper bound (soft row, zs)
+  Array<double> ub;          // per row: multiplier bound (zs on soft rows, inf on hard rows; kept with the rows)
   // Warm start: the rows' states at the last solve's solution (1 in W, 2 at the upper bound),
   // shifted one stage with the plan; valid after a solve this method finished.
-  std::vector<signed char> warm_state;
+  Array<signed char> warm_state;
   bool warm_valid = false;
 
   // Rows (per stage): the C, D, idxs, zs, Zs whose compression the workspace holds, at offsets
   // co[i], doff[i], so[i]; valid when rows_valid (another row preparation clears it).
   bool rows_valid = false;
-  std::vector<double> Cc, Dc, zsc, Zsc;
-  std::vector<int> idxc, co, doff, so;
-  std::vector<signed char> stage_same;  // per solve: stage i's row data equal the copy
+  Array<double> Cc, Dc, zsc, Zsc;
+  Array<int> idxc, co, doff, so;
+  Array<signed char> stage_same;  // per solve: stage i's row data equal the copy
   bool dyn_same = false;                // per solve: A, B, Q, R are the ones condensed
-  std::vector<int> flags;              // b_tail, q_diag, r_diag of the condensed data (3 (N+1))
+  Array<int> flags;              // b_tail, q_diag, r_diag of the condensed data (3 (N+1))
   // Per-solve refresh of kept rows (fast_mpc.cpp's prepare_rows does the same on all rows):
   // constant rows (k, soft in the QP), single-input hard rows (input bounds), active rows.
-  std::vector<int> const_rows, const_soft, bound_rows, bound_col, active_rows;
+  Array<int> const_rows, const_soft, bound_rows, bound_col, active_rows;
   bool quadratic_soft = false;  // an active soft row with Zs > 0: the interior point's QP
   // G z of the active rows in the primal check: rows with one nonzero (row, the variable's address
   // in the workspace, the value's position in w.val), and the others (row, end of its entries in
   // multi_src / multi_pos). A box row costs one product.
-  std::vector<int> one_row, one_pos, multi_row, multi_end, multi_pos;
-  std::vector<const double*> one_src, multi_src;
+  Array<int> one_row, one_pos, multi_row, multi_end, multi_pos;
+  Array<const double*> one_src, multi_src;
 
+  // The dimensions only: the arrays are carved from the solver's arena (Workspace's constructor
+  // calls carve() on its counting pass and on its creating pass, then init()).
   explicit ActiveSet(const OcpQpDims& dims);
+  void carve(Arena& arena);
+  void init();  // the layout's fixed entries (offsets, row stages), once the arrays are placed
   // Doubles of the stage-pair products P for these dimensions, and the most the method takes on
   // (8 MB: far above the guidance's 315 KB at N = 30; a QP with many states and few inputs above it
   // goes to the interior point rather than allocate that).

@@ -15,7 +15,11 @@ using detail::Workspace;
 
 FastMpcSolver::FastMpcSolver(const OcpQpDims& dims, const Settings& settings) : dims_(dims), settings_(settings) {
   if (!dims_.validate().empty()) return;  // every solve() then reports InvalidInput
-  work_ = std::make_unique<Workspace>(dims_);
+  int inputs = 0;
+  for (int i = 0; i <= dims_.N; ++i) inputs += dims_.nu[i];
+  if (inputs <= settings_.active_set_max_inputs && detail::ActiveSet::pair_products(dims_) <= detail::ActiveSet::kMaxPairProducts)
+    dense_ = std::make_unique<detail::ActiveSet>(dims_);  // its arrays: in the workspace's arena
+  work_ = std::make_unique<Workspace>(dims_, dense_.get());
   kernels_ = &detail::kernels_for(*work_);
   const int N = dims_.N;
   x_.assign(N + 1, Vector::Zero(dims_.nx));
@@ -25,8 +29,6 @@ FastMpcSolver::FastMpcSolver(const OcpQpDims& dims, const Settings& settings) : 
     lam_.push_back(Vector::Zero(dims_.nc[i]));
     sig_.push_back(Vector::Zero(dims_.soft_rows(i)));
   }
-  if (work_->inputs <= settings_.active_set_max_inputs && detail::ActiveSet::pair_products(dims_) <= detail::ActiveSet::kMaxPairProducts)
-    dense_ = std::make_unique<detail::ActiveSet>(dims_);
 }
 
 void FastMpcSolver::setup(const OcpQp& qp) {

@@ -77,7 +77,7 @@ class FastMpcSolver {
   const OcpQpDims& dims() const { return dims_; }
   Settings& settings() { return settings_; }
   const Settings& settings() const { return settings_; }
-  size_t workspace_bytes() const;  // the arena's size
+  size_t workspace_bytes() const;  // the arena's size: all the solver's working memory but the published solution
 
   // Internal: the methods (ipm.cpp, fixed_barrier.cpp, infeasibility.cpp).
   // mu_floor > 0: follow the central path only down to complementarity mu_floor and stop once the

@@ -2,9 +2,11 @@
 
 #include <algorithm>
 
+#include "flight_sw/solver/active_set.hpp"
+
 namespace rvd::solver::detail {
 
-Workspace::Workspace(const OcpQpDims& dims) : dims_(dims) {
+Workspace::Workspace(const OcpQpDims& dims, ActiveSet* dense) : dims_(dims) {
   N = dims.N;
   nx = dims.nx;
   for (int i = 0; i <= N; ++i) {
@@ -17,11 +19,13 @@ Workspace::Workspace(const OcpQpDims& dims) : dims_(dims) {
   fixed_kernels = fixed_kernels && (dims.nu[N] == 0 || dims.nu[N] == 3);
   Arena a;
   carve(a);  // plan: count the bytes
+  if (dense) dense->carve(a);
   bytes_ = a.used() + 64;
   block_.reset(new unsigned char[bytes_]);
   auto base = reinterpret_cast<unsigned char*>((reinterpret_cast<size_t>(block_.get()) + 63) / 64 * 64);
   a.start(base);
   carve(a);  // create
+  if (dense) dense->carve(a), dense->init();
   for (int i = 0; i <= N; ++i) {
     nu[i] = dims.nu[i];
     nc[i] = dims.nc[i];

@@ -1,6 +1,7 @@
 // The solver's workspace: one contiguous arena, sized once from the dimensions (as HPIPM's
-// memsize/create), holding the iterate, residuals, Newton steps and Riccati factors. Nothing in
-// it is allocated after the constructor. Internal to the solver.
+// memsize/create), holding the iterate, residuals, Newton steps and Riccati factors, and the dual
+// active-set method's condensed QP and factors (active_set.hpp). Nothing in it is allocated after
+// the constructor. Internal to the solver.
 //
 // Layout: vectors over the stages are stored back to back (x of stage i at x + i*nx, u at
 // u + uo[i], rows of stage i at ro[i]..ro[i+1]), so whole-iterate updates are single loops.
@@ -8,6 +9,7 @@
 // stage-0 rows of x0 alone) carry act = 0 and never enter a step.
 #pragma once
 
+#include <cassert>
 #include <cstddef>
 #include <memory>
 #include <vector>
@@ -16,7 +18,36 @@
 
 namespace rvd::solver::detail {
 
-// Bump allocator over one block: plan() counts, then carve() hands out aligned pieces.
+// A piece of the arena with a fixed capacity: an array (size = capacity) or a list filled by
+// push_back up to its capacity, which the dimensions fix (it never grows: no allocation after the
+// constructor). The subset of std::vector's interface the solver uses.
+template <class T>
+class Array {
+ public:
+  T* data() { return p_; }
+  const T* data() const { return p_; }
+  size_t size() const { return n_; }
+  size_t capacity() const { return cap_; }
+  T& operator[](size_t k) { return p_[k]; }
+  const T& operator[](size_t k) const { return p_[k]; }
+  T* begin() { return p_; }
+  T* end() { return p_ + n_; }
+  const T* begin() const { return p_; }
+  const T* end() const { return p_ + n_; }
+  void clear() { n_ = 0; }
+  void push_back(const T& v) {
+    assert(n_ < cap_);
+    p_[n_++] = v;
+  }
+  void place(T* p, size_t cap, size_t size) { p_ = p, cap_ = cap, n_ = size; }
+
+ private:
+  T* p_ = nullptr;
+  size_t n_ = 0, cap_ = 0;
+};
+
+// Bump allocator over one block: a first pass over the layout counts the bytes (no block yet),
+// a second, after start(), hands out aligned pieces.
 class Arena {
  public:
   template <class T>
@@ -29,6 +60,11 @@ class Arena {
       for (size_t k = 0; k < n; ++k) new (p + k) T();
     return p;
   }
+  // An array of n entries, or (list) an empty one with room for n.
+  template <class T>
+  void take(Array<T>& a, size_t n, bool list = false) {
+    a.place(take<T>(n), n, list ? 0 : n);
+  }
   size_t used() const { return used_; }
   void start(unsigned char* base) { base_ = base, used_ = 0; }
 
@@ -36,6 +72,8 @@ class Arena {
   unsigned char* base_ = nullptr;
   size_t used_ = 0;
 };
+
+struct ActiveSet;
 
 // One Newton step of every variable.
 struct Step {
@@ -97,7 +135,9 @@ struct Workspace {
   double grad_scale = 1.0, cons_scale = 1.0;
 
   Workspace() = default;
-  explicit Workspace(const OcpQpDims& dims);
+  // The arena holds the dual active-set method's arrays too when `dense` is given (carved after
+  // the interior point's; bytes() counts both).
+  explicit Workspace(const OcpQpDims& dims, ActiveSet* dense = nullptr);
   Workspace(const Workspace&) = delete;
   Workspace& operator=(const Workspace&) = delete;
   size_t bytes() const { return bytes_; }

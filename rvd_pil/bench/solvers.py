@@ -84,6 +84,7 @@ def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
         forms[key + ("setup",)] = (time.perf_counter() - t0) * 1e6 if mode == "converged" else math.nan
     r = forms[key].solve(*qp.args(), **qp.kw())
     forms["_iterations"] = r.iterations if r.iterations else r.active_set_changes  # the active set: its changes
+    forms["_bytes"] = forms[key].workspace_bytes
     return r.objective, r.status, r.solve_time_us, forms[key + ("setup",)]
 
 
@@ -394,6 +395,7 @@ def main(argv=None) -> int:
     wrong = defaultdict(int)       # (phase, N, solver) -> objective disagreements / failures
     worst = defaultdict(float)     # (phase, N, solver) -> worst relative objective difference
     iters = defaultdict(list)      # (phase, N, solver) -> iterations (solvers that report them)
+    arena = {}                     # (phase, N, solver) -> flight_sw's working memory in bytes
     count = defaultdict(int)
     used = defaultdict(int)        # which reference solved how many QPs
     for i, qp in enumerate(qps):
@@ -411,7 +413,10 @@ def main(argv=None) -> int:
         for name in names:
             for rep in range(args.repeats):
                 forms.pop("_iterations", None)
+                forms.pop("_bytes", None)
                 obj, status, t_us, setup_us = SOLVERS[name](qp, forms)
+                if "_bytes" in forms:
+                    arena[key + (name,)] = forms["_bytes"]
                 times[key + (name,)].append(t_us)
                 setups[key + (name,)].append(setup_us)
                 if rep == 0:
@@ -443,6 +448,14 @@ def main(argv=None) -> int:
           "(median), where it reports one (flight_sw allocates its workspace once per phase, before any solve); "
           "iterations: per solve, where the solver reports them (HPIPM; flight_sw: interior-point iterations, "
           "active-set changes where it runs the active-set method)\n")
+
+    if arena:
+        print("flight_sw working memory (its one arena, allocated by the constructor once per phase; the "
+              "published solution aside), KB:")
+        for name in [n for n in names if any(k[2] == n for k in arena)]:
+            print(f"  {name}: " + ", ".join(f"{k[0]} {k[1]} {arena[k + (name,)] / 1024:.0f}"
+                                             for k in groups if k + (name,) in arena))
+        print()
 
     # Growth with the horizon: linear scaling gives N_max / N_min; the dissertation's CVXGEN gave
     # 864/119 = 7.3 for rendezvous N 45 vs 15.
