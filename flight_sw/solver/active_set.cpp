@@ -38,6 +38,13 @@ namespace rvd::solver {
 namespace detail {
 
 namespace {
+constexpr int kMaxBulk = 32;  // Settings::active_set_bulk's largest value
+// A row that joins W in bulk must be well independent of it: its new Gram pivot at least this share
+// of |m_k|^2 (the entering row's least is 1e-10). A row nearly in W's span would make the Gram
+// factor ill-conditioned for the sake of a row that may not belong to the answer; left out, it
+// enters later on its own if it is still violated.
+constexpr double kBulkPivot = 1e-4;
+
 // Dot product with four partial sums (the compiler may not reassociate one chain of additions).
 inline double dot(const double* x, const double* y, int n) {
   double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
@@ -610,13 +617,28 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   // or a soft row at lam = zs with g'z < d; of equals the first in row order. Its G z is left in
   // w.gz. (By the distance, not the violation: rows of late stages combine many inputs, their
   // violations are large, and taking them first makes the working set wander; README.)
+  // Besides it, up to Settings::active_set_bulk more violated hard rows at lam = 0 (the next by
+  // distance, kept in more_*) may join W in the same pass. Cold solves only: a warm start's working
+  // set is mostly right already, and there a row taken in bulk that leaves again costs more (O(p^2)
+  // twice, with p large) than the primal point it saves.
+  const int bulk_max = warm ? 0 : std::clamp(settings_.active_set_bulk, 0, detail::kMaxBulk);
+  int n_more = 0;
+  int more_row[detail::kMaxBulk];
+  double more_gz[detail::kMaxBulk], more_dist[detail::kMaxBulk];
   auto most_violated = [&]() {
     int enter = -1;
     double worst = 0.0, gz_enter = 0.0;
+    n_more = 0;
     auto consider = [&](int k, double gz) {
       const double r = gz - w.dv[k], dist = r * scan[k];
-      if (dist >= worst && (dist > worst || k < enter) && std::abs(r) > violation_tol * std::max(1.0, std::abs(w.dv[k])))
-        worst = dist, enter = k, gz_enter = gz;
+      if (!(dist > 0.0) || !(std::abs(r) > violation_tol * std::max(1.0, std::abs(w.dv[k])))) return;
+      if (dist > worst || (dist == worst && k < enter)) worst = dist, enter = k, gz_enter = gz;
+      if (bulk_max > 0 && a.state[k] == 0 && a.ub[k] == inf && (n_more < bulk_max || dist > more_dist[n_more - 1])) {
+        int j = n_more < bulk_max ? n_more++ : n_more - 1;  // insertion into the list, largest first
+        for (; j > 0 && more_dist[j - 1] < dist; --j)
+          more_row[j] = more_row[j - 1], more_gz[j] = more_gz[j - 1], more_dist[j] = more_dist[j - 1];
+        more_row[j] = k, more_gz[j] = gz, more_dist[j] = dist;
+      }
     };
     const size_t n1 = a.one_row.size(), nm = a.multi_row.size();
     for (size_t j = 0; j < n1; ++j) consider(a.one_row[j], w.val[a.one_pos[j]] * *a.one_src[j]);
@@ -632,7 +654,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   // Row p of the Gram factor for the pending row k: true when its m is independent of W's rows,
   // with the new diagonal entry written; false when it is (numerically) a combination of them, Kl's
   // row p then holding Kl^-1 M_W'm.
-  auto gram_append = [&](int k) {
+  auto gram_append = [&](int k, double min_pivot = 1e-10) {
     double* Kp = Kl + static_cast<size_t>(p) * cap;
     double mm = a.gram(w, k, k), ll = 0.0;
     for (int s = 0; s < p; ++s) {
@@ -641,7 +663,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
       ll += Kp[s] * Kp[s];
     }
     const double dd = mm - ll;
-    if (!(dd > 1e-10 * mm)) return false;
+    if (!(dd > min_pivot * mm)) return false;
     Kp[p] = std::sqrt(dd);
     return true;
   };
@@ -649,6 +671,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   Status st = Status::MaxIter;
   int it = 0;
   bool need_primal = true;
+  bool degenerate = false;
+  bool refactored = false;
   // Warm start: the last solution's rows at their upper bound go there again, and its working set
   // is taken in (each row independent of the ones before it) with zero multipliers. Any
   // multipliers within their bounds are a feasible point of the dual, so the method starts from
@@ -682,8 +706,32 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
       primal_current = false;
       const int enter = most_violated();
       if (enter < 0) {
-        st = Status::Solved;
-        break;
+        // W's rows hold with equality at the dual minimiser, unless rounding in the updated Gram
+        // factor spoilt it: then the factor is formed again from W's Gram entries and the
+        // minimiser taken again, once; a second failure hands the QP to the interior point.
+        bool tight = true;
+        for (int s = 0; s < p && tight; ++s) {
+          const int k = a.slot_row[s], i = a.row_stage[k];
+          const double r = detail::g_row(w, k, w.u + a.uo[i], w.x + i * nx) - w.dv[k];
+          tight = std::abs(r) <= settings_.tol * std::max(1.0, std::abs(w.dv[k]));
+        }
+        if (tight) {
+          st = Status::Solved;
+          break;
+        }
+        if (refactored) {
+          st = Status::NumericalError;
+          break;
+        }
+        refactored = true;
+        const int rows_in_w = p;
+        for (p = 0; p < rows_in_w && gram_append(a.slot_row[p]);) ++p;
+        if (p < rows_in_w) {
+          st = Status::NumericalError;
+          break;
+        }
+        need_primal = false;
+        continue;
       }
       if (time_up()) {
         st = Status::TimeLimit;
@@ -718,8 +766,27 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
         double* Kp = Kl + static_cast<size_t>(p) * cap;
         if (gram_append(enter)) {
           ++p;
+          // The other violated hard rows of the scan join W with zero multipliers, each when it is
+          // independent of W: any multipliers within their bounds are a feasible point of the dual,
+          // so the minimiser's pass below starts from there and drops the rows whose multiplier
+          // would turn negative (their violation was another row's), one change each. A primal
+          // point and a scan then serve several entering rows, not one.
+          for (int j = 0; j < (degenerate ? 0 : n_more) && p < n; ++j) {
+            const int c = more_row[j];
+            if (c == enter || !gram_append(c, detail::kBulkPivot)) continue;
+            direction(c, p);
+            double gz_c = more_gz[j];  // its slack at lam = 0 on W, as the entering row's
+            for (int q = 0; q < p; ++q) gz_c += a.lam[q] * a.gram(w, a.slot_row[q], c);
+            a.slot_row[p] = c;
+            a.e[p] = w.dv[c] - gz_c;
+            a.lam[p] = 0.0;
+            set_state(c, 1);
+            ++p;
+            ++it;
+          }
           break;
         }
+        degenerate = true;  // no more rows in bulk this solve: W is near a dependent set
         // Singular: p_k = +-1, p_W = -Kl^-T l p_k keeps M p = 0.
         const double pk = from_upper ? -1.0 : 1.0;
         for (int s = 0; s < p; ++s) a.dir[s] = -Kp[s] * pk;
@@ -790,7 +857,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     ++it;
   }
   info_.active_set_changes = it;
-  if (st == Status::MaxIter) {  // the cap: the interior point from a cold start (Settings::active_set_max_iter)
+  if (st == Status::MaxIter || st == Status::NumericalError) {  // the cap, or W's rows not tight: the interior point from a cold start
     const Status ipm = solve_converged(qp, false, settings_.max_iter, 0.0, settings_.warm_push);
     return ipm;
   }

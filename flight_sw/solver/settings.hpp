@@ -28,6 +28,15 @@ struct Settings {
   // ActiveSet::kMaxPairProducts: 8 MB, reached only by QPs with many states per input).
   int active_set_max_inputs = 96;
   int active_set_max_iter = 200;
+  // Cold solves: at each primal point the most violated row enters the working set and, with it,
+  // up to active_set_bulk more violated hard rows (the next by distance, each when well independent
+  // of the working set), with zero multipliers; those whose multiplier then turns negative leave
+  // again. One primal point and row scan then serve several entering rows (README, "Bulk entry":
+  // 4 cuts cold docking and approach solves at N >= 12 by a quarter to a third; 8 or more adds
+  // rows that only leave again). It stops for the rest of a solve at the first entering row found
+  // dependent on the working set (a degenerate or infeasible QP). Warm solves take one row at a
+  // time. 0: always one (Goldfarb and Idnani's method as published). At most 32.
+  int active_set_bulk = 4;
 
   // --- Newton systems
   // Smallest and largest regularisation of the input block tried when a factorisation fails (x100
