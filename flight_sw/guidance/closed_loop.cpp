@@ -48,6 +48,7 @@ ClosedLoopResult run_closed_loop(const GuidanceParams& params, const Vector6d& x
     s.status = cmd.status;
     s.solver_status = cmd.solver.status;
     s.iterations = cmd.solver.iterations;
+    s.active_set_changes = cmd.solver.active_set_changes;
     s.solve_time_us = cmd.solver.solve_time_us;
     s.step_time_us = cmd.step_time_us;
     res.log.push_back(s);

@@ -207,7 +207,14 @@ void bind_guidance(py::module_& m) {
       .def_property(
           "solver_active_set_max_inputs", [](const PhaseParams& p) { return p.solver.active_set_max_inputs; },
           [](PhaseParams& p, int v) { p.solver.active_set_max_inputs = v; },
-          "converged mode: the dual active-set method up to this many inputs (N nu), 0: the interior point");
+          "converged mode: the dual active-set method up to this many inputs (N nu), 0: the interior point")
+      .def_property(
+          "solver_active_set_bulk", [](const PhaseParams& p) { return p.solver.active_set_bulk; },
+          [](PhaseParams& p, int v) {
+            if (v < 0 || v > 32) throw py::value_error("solver_active_set_bulk must be in 0..32");
+            p.solver.active_set_bulk = v;
+          },
+          "cold active-set solves: violated rows that may join the most violated one per primal point (0: one at a time)");
 
   py::class_<EstimateQuality>(m, "EstimateQuality", "How well the guidance knows its state and thrusters.")
       .def(py::init<>())
@@ -463,6 +470,7 @@ void bind_guidance(py::module_& m) {
         return v;
       })
       .def_property_readonly("iterations", [](const ClosedLoopResult& r) { return column<int>(r.log, [](const ClosedLoopStep& s) { return s.iterations; }); })
+      .def_property_readonly("active_set_changes", [](const ClosedLoopResult& r) { return column<int>(r.log, [](const ClosedLoopStep& s) { return s.active_set_changes; }); })
       .def_property_readonly("solve_time_us", [](const ClosedLoopResult& r) { return column<double>(r.log, [](const ClosedLoopStep& s) { return s.solve_time_us; }); })
       .def_property_readonly("step_time_us", [](const ClosedLoopResult& r) { return column<double>(r.log, [](const ClosedLoopStep& s) { return s.step_time_us; }); })
       .def_property_readonly("phases", [](const ClosedLoopResult& r) {

@@ -771,7 +771,9 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
           // so the minimiser's pass below starts from there and drops the rows whose multiplier
           // would turn negative (their violation was another row's), one change each. A primal
           // point and a scan then serve several entering rows, not one.
-          for (int j = 0; j < (degenerate ? 0 : n_more) && p < n; ++j) {
+          // (Not past half the change cap: rows taken in bulk count as changes, and the cap hands
+          // the QP to the interior point.)
+          for (int j = 0; j < (degenerate || 2 * it >= max_iter ? 0 : n_more) && p < n; ++j) {
             const int c = more_row[j];
             if (c == enter || !gram_append(c, detail::kBulkPivot)) continue;
             direction(c, p);

@@ -34,7 +34,8 @@ struct Settings {
   // again. One primal point and row scan then serve several entering rows (README, "Bulk entry":
   // 4 cuts cold docking and approach solves at N >= 12 by a quarter to a third; 8 or more adds
   // rows that only leave again). It stops for the rest of a solve at the first entering row found
-  // dependent on the working set (a degenerate or infeasible QP). Warm solves take one row at a
+  // dependent on the working set (a degenerate or infeasible QP) and past half of
+  // active_set_max_iter (rows taken in bulk count as changes). Warm solves take one row at a
   // time. 0: always one (Goldfarb and Idnani's method as published). At most 32.
   int active_set_bulk = 4;
 
