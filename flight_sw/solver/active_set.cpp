@@ -38,7 +38,6 @@ namespace rvd::solver {
 namespace detail {
 
 namespace {
-constexpr int kMaxBulk = 32;  // Settings::active_set_bulk's largest value
 // A row that joins W in bulk must be well independent of it: its new Gram pivot at least this share
 // of |m_k|^2 (the entering row's least is 1e-10). A row nearly in W's span would make the Gram
 // factor ill-conditioned for the sake of a row that may not belong to the answer; left out, it
@@ -154,13 +153,12 @@ void ActiveSet::carve(Arena& arena) {
   const OcpQpDims& d = dims;
   const size_t n1 = static_cast<size_t>(N) + 1, un = static_cast<size_t>(n), nr = static_cast<size_t>(rows);
   arena.take(nu, n1), arena.take(uo, n1 + 1);
-  size_t blocks = 0, a = 0, b = 0, q = 0, r = 0, pairs = 0, cs = 0, ds = 0, ss = 0;
+  size_t blocks = 0, a = 0, b = 0, q = 0, r = 0, cs = 0, ds = 0, ss = 0;
   int nu_max = 0;
   for (int i = 0; i <= N; ++i) {
     blocks += static_cast<size_t>(N - i) * nx * d.nu[i];
     if (i < N) a += nx * nx, b += nx * d.nu[i];
     q += nx * nx, r += d.nu[i] * d.nu[i];
-    for (int j = i; j <= N; ++j) pairs += static_cast<size_t>(d.nu[i] + nx) * (d.nu[j] + nx);
     cs += static_cast<size_t>(d.nc[i]) * nx, ds += static_cast<size_t>(d.nc[i]) * d.nu[i], ss += d.soft_rows(i);
     nu_max = std::max(nu_max, d.nu[i]);
   }
@@ -169,7 +167,7 @@ void ActiveSet::carve(Arena& arena) {
   arena.take(L, un * un), arena.take(Hinv, un * un), arena.take(Yx, n1 * un * nx);
   arena.take(f, un), arena.take(uc, un), arena.take(tmp, std::max(un + 1, static_cast<size_t>(nx)));
   arena.take(xf, n1 * nx), arena.take(lamx, n1 * nx);
-  arena.take(po, n1 * n1), arena.take(P, pairs);  // (pairs == pair_products(d))
+  arena.take(po, n1 * n1), arena.take(P, pair_products(d));
   arena.take(row_stage, nr), arena.take(inv_norm, nr);
   const size_t c = static_cast<size_t>(cap), nnz = nr * (nx + nu_max);
   arena.take(Uw, c * un), arena.take(Kl, c * c);
@@ -621,10 +619,10 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   // distance, kept in more_*) may join W in the same pass. Cold solves only: a warm start's working
   // set is mostly right already, and there a row taken in bulk that leaves again costs more (O(p^2)
   // twice, with p large) than the primal point it saves.
-  const int bulk_max = warm ? 0 : std::clamp(settings_.active_set_bulk, 0, detail::kMaxBulk);
+  const int bulk_max = warm ? 0 : settings_.active_set_bulk;  // (within 0..kMaxActiveSetBulk: solve() checks)
   int n_more = 0;
-  int more_row[detail::kMaxBulk];
-  double more_gz[detail::kMaxBulk], more_dist[detail::kMaxBulk];
+  int more_row[Settings::kMaxActiveSetBulk];
+  double more_gz[Settings::kMaxActiveSetBulk], more_dist[Settings::kMaxActiveSetBulk];
   auto most_violated = [&]() {
     int enter = -1;
     double worst = 0.0, gz_enter = 0.0;
@@ -666,6 +664,13 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     if (!(dd > min_pivot * mm)) return false;
     Kp[p] = std::sqrt(dd);
     return true;
+  };
+
+  // Row k's slack at lam = 0 on W, given its g'z at the current point: g'z at uc is g'z here plus
+  // W's multipliers' share, gbar'U_s lam_s.
+  auto slack_at_zero = [&](int k, double gz) {
+    for (int s = 0; s < p; ++s) gz += a.lam[s] * a.gram(w, a.slot_row[s], k);
+    return w.dv[k] - gz;
   };
 
   Status st = Status::MaxIter;
@@ -752,11 +757,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
           continue;
         }
       }
-      // Its slack at lam = 0 on W: g'z at uc is g'z here plus W's multipliers' share, gbar'U_s lam_s.
-      double gz_uc = w.gz[enter];
-      for (int s = 0; s < p; ++s) gz_uc += a.lam[s] * a.gram(w, a.slot_row[s], enter);
+      a.e[p] = slack_at_zero(enter, w.gz[enter]);
       a.slot_row[p] = enter;
-      a.e[p] = w.dv[enter] - gz_uc;
       if (from_upper) shift_uc(enter, U, -a.ub[enter], true);
       a.lam[p] = from_upper ? a.ub[enter] : 0.0;
       set_state(enter, 1);
@@ -777,10 +779,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
             const int c = more_row[j];
             if (c == enter || !gram_append(c, detail::kBulkPivot)) continue;
             direction(c, p);
-            double gz_c = more_gz[j];  // its slack at lam = 0 on W, as the entering row's
-            for (int q = 0; q < p; ++q) gz_c += a.lam[q] * a.gram(w, a.slot_row[q], c);
+            a.e[p] = slack_at_zero(c, more_gz[j]);
             a.slot_row[p] = c;
-            a.e[p] = w.dv[c] - gz_c;
             a.lam[p] = 0.0;
             set_state(c, 1);
             ++p;

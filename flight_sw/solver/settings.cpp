@@ -29,7 +29,7 @@ Settings Settings::fixed_barrier(double kappa, int max_iter) {
 
 const char* Settings::invalid() const {
   if (max_iter < 0 || active_set_max_iter < 0) return "max_iter and active_set_max_iter must be >= 0";
-  if (active_set_bulk < 0 || active_set_bulk > 32) return "active_set_bulk must be in 0..32";
+  if (active_set_bulk < 0 || active_set_bulk > kMaxActiveSetBulk) return "active_set_bulk must be in 0..32";
   if (!(tol > 0.0)) return "tol must be > 0";
   if (mode == Mode::FixedBarrier && !(barrier > 0.0)) return "barrier (kappa) must be > 0";
   if (!(time_limit_us >= 0.0)) return "time_limit_us must be >= 0";

@@ -38,6 +38,7 @@ struct Settings {
   // active_set_max_iter (rows taken in bulk count as changes). Warm solves take one row at a
   // time. 0: always one (Goldfarb and Idnani's method as published). At most 32.
   int active_set_bulk = 4;
+  static constexpr int kMaxActiveSetBulk = 32;
 
   // --- Newton systems
   // Smallest and largest regularisation of the input block tried when a factorisation fails (x100

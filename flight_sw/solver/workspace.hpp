@@ -27,7 +27,6 @@ class Array {
   T* data() { return p_; }
   const T* data() const { return p_; }
   size_t size() const { return n_; }
-  size_t capacity() const { return cap_; }
   T& operator[](size_t k) { return p_[k]; }
   const T& operator[](size_t k) const { return p_[k]; }
   T* begin() { return p_; }
