@@ -172,6 +172,7 @@ void ActiveSet::carve(Arena& arena) {
   const size_t c = static_cast<size_t>(cap), nnz = nr * (nx + nu_max);
   arena.take(Uw, c * un), arena.take(Kl, c * c);
   arena.take(e, c), arena.take(lam, c), arena.take(lam_star, c), arena.take(dir, c), arena.take(slot_row, c);
+  arena.take(gram_col, c);
   arena.take(state, nr), arena.take(warm_state, nr), arena.take(ub, nr);
   arena.take(co, n1 + 1), arena.take(doff, n1 + 1), arena.take(so, n1 + 1);
   arena.take(Cc, cs), arena.take(Dc, ds), arena.take(zsc, ss), arena.take(Zsc, ss), arena.take(idxc, ss);
@@ -657,7 +658,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     double mm = a.gram(w, k, k), ll = 0.0;
     for (int s = 0; s < p; ++s) {
       const double* Ks = Kl + static_cast<size_t>(s) * cap;
-      Kp[s] = (a.gram(w, a.slot_row[s], k) - detail::dot(Ks, Kp, s)) / Ks[s];
+      a.gram_col[s] = a.gram(w, a.slot_row[s], k);
+      Kp[s] = (a.gram_col[s] - detail::dot(Ks, Kp, s)) / Ks[s];
       ll += Kp[s] * Kp[s];
     }
     const double dd = mm - ll;
@@ -667,9 +669,9 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   };
 
   // Row k's slack at lam = 0 on W, given its g'z at the current point: g'z at uc is g'z here plus
-  // W's multipliers' share, gbar'U_s lam_s.
+  // W's multipliers' share, gbar'U_s lam_s (the Gram entries from gram_append(k), just before).
   auto slack_at_zero = [&](int k, double gz) {
-    for (int s = 0; s < p; ++s) gz += a.lam[s] * a.gram(w, a.slot_row[s], k);
+    for (int s = 0; s < p; ++s) gz += a.lam[s] * a.gram_col[s];
     return w.dv[k] - gz;
   };
 
@@ -757,16 +759,17 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
           continue;
         }
       }
+      // Append to the Gram factor, or move along the null space while it would be singular.
+      bool independent = gram_append(enter);
       a.e[p] = slack_at_zero(enter, w.gz[enter]);
       a.slot_row[p] = enter;
       if (from_upper) shift_uc(enter, U, -a.ub[enter], true);
       a.lam[p] = from_upper ? a.ub[enter] : 0.0;
       set_state(enter, 1);
       need_primal = false;
-      // Append to the Gram factor, or move along the null space while it would be singular.
       for (;;) {
         double* Kp = Kl + static_cast<size_t>(p) * cap;
-        if (gram_append(enter)) {
+        if (independent) {
           ++p;
           // The other violated hard rows of the scan join W with zero multipliers, each when it is
           // independent of W: any multipliers within their bounds are a feasible point of the dual,
@@ -827,6 +830,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
         a.lam[p] = lam_p;
         a.e[p] = e_p;
         ++it;
+        independent = gram_append(enter);
       }
       if (st == Status::Infeasible) break;
       continue;

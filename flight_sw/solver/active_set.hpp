@@ -51,6 +51,7 @@ struct ActiveSet {
   // e_k = d_k - g_k'z at uc (the row's slack at lam = 0) and the multiplier.
   int cap = 0;
   Array<double> Uw, Kl, e, lam, lam_star, dir, tmp;
+  Array<double> gram_col;  // W's Gram entries against the row last appended (its slack at lam = 0 reuses them)
   Array<int> slot_row;
   Array<signed char> state;  // per row: 0 multiplier 0, 1 in W, 2 at its upper bound (soft row, zs)
   Array<double> ub;          // per row: multiplier bound (zs on soft rows, inf on hard rows; kept with the rows)
