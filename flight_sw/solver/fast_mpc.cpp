@@ -125,7 +125,10 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
            : settings_.mode == Mode::Converged ? solve_converged(qp, warm, settings_.max_iter, 0.0, settings_.warm_push)
                                                : solve_barrier(qp, warm);
     }
-    K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
+    // The active-set method, when it answered alone (no interior-point iteration), formed every
+    // row's G z at its plan for the outputs.
+    const bool gz_current = st == Status::Solved && active_set_applies() && info_.iterations == 0;
+    K.residuals(w, qp, w.x, w.u, w.pi, w.lam, gz_current);
     double pres = detail::max_abs(w.rdyn, w.N * w.nx), dres = 0.0;
     for (int k = 0; k < w.rows; ++k) {
       if (w.act[k] == 0.0) continue;
