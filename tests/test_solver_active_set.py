@@ -359,3 +359,19 @@ def test_row_scaling_leaves_the_path_unchanged(phase, closed_loop_qps):
         assert res_s.objective == pytest.approx(res.objective, rel=1e-9, abs=1e-9)
         changed += res.active_set_changes
     assert changed > 0  # the QPs needed working sets
+
+
+def test_bulk_outside_its_range_is_refused():
+    qp = make("docking", 5, 7)
+    s = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, tol=1e-8, warm_start=False)
+    for bad in (-1, 33):
+        with pytest.raises(ValueError, match=r"active_set_bulk must be in 0\.\.32"):
+            s.active_set_bulk = bad
+    s.active_set_bulk = 32  # the largest allowed value solves as any other
+    res = s.solve(*qp.args(), **qp.kw())
+    assert by_active_set(res)
+    agrees(qp, res, reference(qp))
+    phase = flight_sw.GuidanceParams().docking
+    with pytest.raises(ValueError, match=r"solver_active_set_bulk must be in 0\.\.32"):
+        phase.solver_active_set_bulk = 33
+    assert phase.solver_active_set_bulk == 4  # unchanged by the refused value

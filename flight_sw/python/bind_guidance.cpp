@@ -212,7 +212,7 @@ void bind_guidance(py::module_& m) {
           "solver_active_set_bulk", [](const PhaseParams& p) { return p.solver.active_set_bulk; },
           [](PhaseParams& p, int v) {
             if (v < 0 || v > solver::Settings::kMaxActiveSetBulk)
-              throw py::value_error("solver_active_set_bulk must be in 0..32");
+              throw py::value_error("solver_active_set_bulk must be in 0.." + std::to_string(solver::Settings::kMaxActiveSetBulk));
             p.solver.active_set_bulk = v;
           },
           "cold active-set solves: violated rows that may join the most violated one per primal point (0: one at a time)");

@@ -334,7 +334,7 @@ gives status 'invalid_input'.)doc");
       .def_property(
           "active_set_bulk", [](PyOcpSolver& s) { return s.solver().settings().active_set_bulk; },
           [](PyOcpSolver& s, int v) {
-            if (v < 0 || v > Settings::kMaxActiveSetBulk) throw py::value_error("active_set_bulk must be in 0..32");
+            if (v < 0 || v > Settings::kMaxActiveSetBulk) throw py::value_error("active_set_bulk must be in 0.." + std::to_string(Settings::kMaxActiveSetBulk));
             s.solver().settings().active_set_bulk = v;
           },
           "violated rows that may join the most violated one per primal point of the active-set method (0: one at a time)");

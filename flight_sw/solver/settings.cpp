@@ -29,6 +29,7 @@ Settings Settings::fixed_barrier(double kappa, int max_iter) {
 
 const char* Settings::invalid() const {
   if (max_iter < 0 || active_set_max_iter < 0) return "max_iter and active_set_max_iter must be >= 0";
+  static_assert(kMaxActiveSetBulk == 32, "the message below names the limit");
   if (active_set_bulk < 0 || active_set_bulk > kMaxActiveSetBulk) return "active_set_bulk must be in 0..32";
   if (!(tol > 0.0)) return "tol must be > 0";
   if (mode == Mode::FixedBarrier && !(barrier > 0.0)) return "barrier (kappa) must be > 0";

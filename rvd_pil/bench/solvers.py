@@ -456,7 +456,7 @@ def main(argv=None) -> int:
 
     if arena:
         print("flight_sw working memory (its one arena, allocated by the constructor once per phase; the "
-              "published solution aside), KB:")
+              "published solution aside), KiB:")
         for name in [n for n in names if any(k[2] == n for k in arena)]:
             print(f"  {name}: " + ", ".join(f"{k[0]} {k[1]} {arena[k + (name,)] / 1024:.0f}"
                                              for k in groups if k + (name,) in arena))
