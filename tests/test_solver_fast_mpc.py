@@ -1,6 +1,8 @@
 """flight_sw's Fast MPC solver from Python, against ProxSuite and against constructions whose answer
 is known (reachability LPs, barrier theory). QPs are MPC-like: CW dynamics, nx = 6, 3 thrust inputs
 plus slack inputs, box and halfspace rows, horizons 5..45."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -266,6 +268,34 @@ def test_bench_runs_on_a_qp_set_file(tmp_path, capsys):
     rows = [line.split() for line in out.splitlines() if line.startswith("docking")]
     assert [r[2] for r in rows] == ["flight_sw", "proxsuite-sparse", "daqp"]
     assert all(r[8] == "0/2" for r in rows), out  # objectives agree with the reference
+
+
+def test_bench_with_cold_caches_evicts_them_before_every_timed_solve(tmp_path, capsys, monkeypatch):
+    """--cold-cache: before each timed solve of each solver the evictor writes over a buffer at least
+    twice the size of the last-level cache; the answers are checked as without it."""
+    from rvd_pil.bench import solvers
+    rng = np.random.default_rng(9)
+    path = tmp_path / "two.npz"
+    save_qp_set(path, [docking_qp(5, rng), docking_qp(5, rng)])
+    calls, sizes = [], []
+    evict = solvers.CacheEvictor.__call__
+
+    def counted(self):
+        calls.append(1)
+        sizes.append(self.bytes)
+        evict(self)
+
+    monkeypatch.setattr(solvers.CacheEvictor, "__call__", counted)
+    assert solvers.main(["--qp-set", str(path), "--repeats", "3", "--solvers", "flight_sw,daqp", "--cold-cache"]) == 0
+    out = capsys.readouterr().out
+    assert "caches: evicted before every timed solve" in out
+    assert len(calls) == 2 * 2 * 3  # QPs x solvers x repeats
+    llc = Path("/sys/devices/system/cpu/cpu0/cache/index3/size")
+    if llc.exists():  # e.g. "32768K"
+        text = llc.read_text().strip()
+        assert sizes[0] >= 2 * int(text.rstrip("KMG")) * {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(text[-1], 1)
+    rows = [line.split() for line in out.splitlines() if line.startswith("docking")]
+    assert [r[2] for r in rows] == ["flight_sw", "daqp"] and all(r[8] == "0/2" for r in rows), out
 
 
 @pytest.mark.parametrize("phase", ["rendezvous", "approach"])

@@ -9,6 +9,8 @@ the same MPC QPs, measured in one run. Prints figures; asserts nothing about spe
         # Cases 1-3 and seeded random starts (rotating targets among them) at the three horizon sets,
         # sampled per phase and horizon, written to cl.npz, then benched
     python -m rvd_pil.bench.solvers --warm-cold                # closed loops solved warm and cold side by side
+    python -m rvd_pil.bench.solvers --qp-set run.npz --cold-cache   # every timed solve starts with its
+        # code and data out of the caches, as a guidance that solves once per control period meets them
 
 Accuracy is matched, not assumed: every solver's objective is compared with a reference (ProxSuite,
 eps_abs 1e-10, or looser where it cannot get there; Clarabel at 1e-10 where ProxSuite fails) and
@@ -53,6 +55,7 @@ import math
 import sys
 import time
 from collections import defaultdict
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -229,6 +232,29 @@ def reference(qp: OcpQpData, forms: dict):
         "proxsuite+clarabel"
 
 
+class CacheEvictor:
+    """Writes a buffer twice the size of this machine's caches (all levels, from sysfs; 64 MiB when it
+    does not say) before a timed solve, so that the solve finds none of its code or data cached: the
+    cost of a solver's memory footprint, which a guidance solving once per control period, with its
+    navigation and link in between, pays on every solve. (The repeats of one QP otherwise run back
+    to back and find everything cached.)"""
+
+    def __init__(self):
+        total = 0
+        for index in Path("/sys/devices/system/cpu/cpu0/cache").glob("index*"):
+            try:
+                size = (index / "size").read_text().strip()
+            except OSError:
+                continue
+            scale = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(size[-1:], 1)
+            total += int(size.rstrip("KMG")) * scale
+        self.bytes = 2 * total if total else 64 << 20
+        self._buffer = np.zeros(self.bytes // 8)
+
+    def __call__(self):
+        self._buffer += 1.0  # every line read and written back
+
+
 # ------------------------------------------------------------------------------------------------
 
 def synthetic_set(per_group: int, seed: int) -> list[OcpQpData]:
@@ -368,6 +394,10 @@ def main(argv=None) -> int:
                          "--per-group QPs per phase and horizon) into FILE, then bench it")
     ap.add_argument("--random-starts", type=int, default=12, help="random starts in --closed-loop-set")
     ap.add_argument("--warm-cold", action="store_true", help="closed loops warm vs cold, then exit")
+    ap.add_argument("--cold-cache", action="store_true",
+                    help="evict the caches before every timed solve (twice the caches' size written over), "
+                         "as a solve once per control period meets them; default: the repeats of a QP run back "
+                         "to back, caches warm")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     if args.warm_cold:
@@ -389,8 +419,10 @@ def main(argv=None) -> int:
         args.qp_set = args.closed_loop_set
     else:
         qps = load_qp_set(args.qp_set) if args.qp_set else synthetic_set(args.per_group, args.seed)
+    evict = CacheEvictor() if args.cold_cache else None
     print(f"{len(qps)} QPs from {args.qp_set or 'the synthetic MPC set'}; {args.repeats} timed solves per QP "
-          f"and solver; times in microseconds (each solver's own clock, see the module docstring)\n")
+          f"and solver; times in microseconds (each solver's own clock, see the module docstring)")
+    print(f"caches: {f'evicted before every timed solve ({evict.bytes >> 20} MiB written)' if evict else 'warm (the repeats of a QP back to back)'}\n")
     if any(n.startswith("hpipm") for n in names):
         from rvd_pil.bench.hpipm import call_overhead_ns, version
         print(f"{version()}; ctypes call overhead subtracted: {call_overhead_ns():.0f} ns\n")
@@ -419,6 +451,8 @@ def main(argv=None) -> int:
             for rep in range(args.repeats):
                 forms.pop("_iterations", None)
                 forms.pop("_bytes", None)
+                if evict:
+                    evict()
                 obj, status, t_us, setup_us = SOLVERS[name](qp, forms)
                 if "_bytes" in forms:
                     arena[key + (name,)] = forms["_bytes"]
