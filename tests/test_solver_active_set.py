@@ -245,7 +245,8 @@ def test_one_solver_along_a_closed_loop(closed_loop_qps):
     """One solver, as the guidance keeps it, fed the docking QPs of a turning target in flight order:
     the cone rows' values change every period on the same nonzeros (taken in place), a QP with other
     nonzeros prepares every row again, a NaN in a row is refused, and every answer is the optimum
-    of the QP given."""
+    of the QP given. The first QP comes back after values taken in place: the copies that tell a
+    stage unchanged must be those of the last QP, not of the last full preparation."""
     qps = closed_loop_qps[3][:12]
     first = qps[0]
     solver = flight_sw.OcpSolver(first.nx, first.nu, first.nc, None, warm_start=False)
@@ -257,7 +258,7 @@ def test_one_solver_along_a_closed_loop(closed_loop_qps):
     bad = OcpQpData(*first.args()[:-1], first.x0, first.phase, first.Ts)
     bad.C = [C.copy() for C in first.C]
     bad.C[2][0, 0] = np.nan
-    for qp in qps[:6] + [reshaped, bad] + qps[6:] + [qps[0]]:
+    for qp in qps[:6] + [qps[0], reshaped, bad] + qps[6:] + [qps[0]]:
         res = solver.solve(*qp.args())
         if qp is bad:
             assert res.status == "invalid_input"

@@ -66,9 +66,6 @@ void solve_lt(const double* L, size_t stride, int n, double* y) {
     for (int r = 0; r < t; ++r) y[r] -= Lt[r] * yt;
   }
 }
-void append(Array<double>& out, const Matrix& M) {  // (shapes checked: within the capacity)
-  for (long k = 0; k < M.size(); ++k) out.push_back(M.data()[k]);
-}
 bool equal(const double* a, const double* b, size_t n) {
   return n == 0 || std::memcmp(a, b, sizeof(double) * n) == 0;  // (an empty block has no data)
 }
@@ -78,6 +75,12 @@ template <class M>
 bool equal(const double* a, const M& m, long rows, long cols) {
   return m.rows() == rows && m.cols() == cols && equal(a, m.data(), static_cast<size_t>(rows * cols));
 }
+// Stage i's copy in `c` is m, of shape (rows, cols).
+template <class M>
+bool same_block(const StageCopies& c, int i, const M& m, long rows, long cols) {
+  return m.rows() == rows && m.cols() == cols && c.same(i, m.data(), static_cast<size_t>(rows * cols));
+}
+void keep_block(StageCopies& c, int i, const Matrix& m) { c.keep(i, m.data(), static_cast<size_t>(m.size())); }
 // The stage products of the active set's passes (states of a plan, the adjoint recursions), with
 // fixed sizes for the guidance's shape (nx = 6, nu = 3 on stages 0..N-1, none on stage N:
 // Workspace::fixed_kernels) and dynamic ones otherwise; inlined into the loops over the stages.
@@ -162,7 +165,7 @@ void ActiveSet::carve(Arena& arena) {
     cs += static_cast<size_t>(d.nc[i]) * nx, ds += static_cast<size_t>(d.nc[i]) * d.nu[i], ss += d.soft_rows(i);
     nu_max = std::max(nu_max, d.nu[i]);
   }
-  arena.take(A, a, true), arena.take(B, b, true), arena.take(Q, q, true), arena.take(R, r, true);
+  A.carve(arena, a, n1), B.carve(arena, b, n1), Q.carve(arena, q, n1), R.carve(arena, r, n1);
   arena.take(go, n1), arena.take(gam, blocks);
   arena.take(L, un * un), arena.take(Hinv, un * un), arena.take(Yx, n1 * un * nx);
   arena.take(f, un), arena.take(uc, un), arena.take(tmp, std::max(un + 1, static_cast<size_t>(nx)));
@@ -174,8 +177,9 @@ void ActiveSet::carve(Arena& arena) {
   arena.take(e, c), arena.take(lam, c), arena.take(lam_star, c), arena.take(dir, c), arena.take(slot_row, c);
   arena.take(gram_col, c);
   arena.take(state, nr), arena.take(warm_state, nr), arena.take(ub, nr);
-  arena.take(co, n1 + 1), arena.take(doff, n1 + 1), arena.take(so, n1 + 1);
-  arena.take(Cc, cs), arena.take(Dc, ds), arena.take(zsc, ss), arena.take(Zsc, ss), arena.take(idxc, ss);
+  arena.take(so, n1 + 1);
+  Cc.carve(arena, cs, n1), Dc.carve(arena, ds, n1);
+  arena.take(zsc, ss), arena.take(Zsc, ss), arena.take(idxc, ss);
   arena.take(stage_same, n1), arena.take(flags, 3 * n1);
   for (auto* list : {&const_rows, &const_soft, &bound_rows, &bound_col, &active_rows, &one_row, &one_pos, &multi_row, &multi_end})
     arena.take(*list, nr, true);
@@ -194,11 +198,7 @@ void ActiveSet::init() {
   for (int i = 0, k = 0; i <= N; ++i)
     for (int j = 0; j < d.nc[i]; ++j) row_stage[k++] = i;
   std::fill(slot_row.begin(), slot_row.end(), -1);
-  for (int i = 0; i <= N; ++i) {
-    co[i + 1] = co[i] + d.nc[i] * nx;
-    doff[i + 1] = doff[i] + d.nc[i] * nu[i];
-    so[i + 1] = so[i] + d.soft_rows(i);
-  }
+  for (int i = 0; i <= N; ++i) so[i + 1] = so[i] + d.soft_rows(i);
 }
 
 size_t ActiveSet::pair_products(const OcpQpDims& d) {
@@ -207,10 +207,27 @@ size_t ActiveSet::pair_products(const OcpQpDims& d) {
   return (sum * sum + squares) / 2;  // sum over i <= j of m_i m_j
 }
 
+void StageCopies::carve(Arena& arena, size_t doubles, size_t stages) {
+  arena.take(data, doubles, true), arena.take(at, stages), arena.take(len, stages);
+}
+
+void StageCopies::keep(int i, const double* p, size_t n) {
+  len[i] = static_cast<int>(n);
+  if (i > 0 && len[i - 1] == len[i] && equal(data.data() + at[i - 1], p, n)) {
+    at[i] = at[i - 1];
+    return;
+  }
+  at[i] = static_cast<int>(data.size());
+  for (size_t k = 0; k < n; ++k) data.push_back(p[k]);  // (within the capacity: every stage's length)
+}
+
+bool StageCopies::same(int i, const double* p, size_t n) const {
+  return static_cast<size_t>(len[i]) == n && equal(data.data() + at[i], p, n);
+}
+
 bool ActiveSet::same_rows(const OcpQp& qp, int i) const {
-  const int ns = so[i + 1] - so[i], nc = (co[i + 1] - co[i]) / nx;
-  if (!rows_valid || !equal(Cc.data() + co[i], qp.C[i], nc, nx) || !equal(Dc.data() + doff[i], qp.D[i], nc, nu[i]))
-    return false;
+  const int ns = so[i + 1] - so[i], nc = dims.nc[i];
+  if (!rows_valid || !same_block(Cc, i, qp.C[i], nc, nx) || !same_block(Dc, i, qp.D[i], nc, nu[i])) return false;
   return ns == 0 || (static_cast<int>(qp.idxs[i].size()) == ns &&
                      std::memcmp(idxc.data() + so[i], qp.idxs[i].data(), sizeof(int) * ns) == 0 &&
                      equal(zsc.data() + so[i], qp.zs[i], ns, 1) && equal(Zsc.data() + so[i], qp.Zs[i], ns, 1));
@@ -237,21 +254,23 @@ bool ActiveSet::same_pattern(Workspace& w, const OcpQp& qp, int i) {
         return false;
     }
   }
-  std::copy(C.data(), C.data() + C.size(), Cc.data() + co[i]);
-  std::copy(D.data(), D.data() + D.size(), Dc.data() + doff[i]);
   return true;
 }
 
-void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
+void ActiveSet::keep_copies(const OcpQp& qp) {
+  Cc.clear(), Dc.clear();
   for (int i = 0; i <= N; ++i) {
-    std::copy(qp.C[i].data(), qp.C[i].data() + qp.C[i].size(), Cc.data() + co[i]);
-    std::copy(qp.D[i].data(), qp.D[i].data() + qp.D[i].size(), Dc.data() + doff[i]);
+    keep_block(Cc, i, qp.C[i]), keep_block(Dc, i, qp.D[i]);
     const int ns = so[i + 1] - so[i];
     if (ns == 0) continue;
     std::copy(qp.idxs[i].begin(), qp.idxs[i].end(), idxc.begin() + so[i]);
     std::copy(qp.zs[i].data(), qp.zs[i].data() + ns, zsc.data() + so[i]);
     std::copy(qp.Zs[i].data(), qp.Zs[i].data() + ns, Zsc.data() + so[i]);
   }
+}
+
+void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
+  keep_copies(qp);
   for (int i = 0; i <= N; ++i) {
     flags[3 * i] = i < N ? w.b_tail[i] : 0;
     flags[3 * i + 1] = w.q_diag[i];
@@ -317,14 +336,9 @@ double ActiveSet::gram(const Workspace& w, int r, int k) const {
 
 bool ActiveSet::same_data(const OcpQp& qp) const {
   if (!condensed) return false;
-  size_t a = 0, b = 0, q = 0, r = 0;
   for (int i = 0; i <= N; ++i) {
-    if (i < N) {
-      if (!equal(A.data() + a, qp.A[i], nx, nx) || !equal(B.data() + b, qp.B[i], nx, nu[i])) return false;
-      a += nx * nx, b += nx * nu[i];
-    }
-    if (!equal(Q.data() + q, qp.Q[i], nx, nx) || !equal(R.data() + r, qp.R[i], nu[i], nu[i])) return false;
-    q += nx * nx, r += nu[i] * nu[i];
+    if (i < N && !(same_block(A, i, qp.A[i], nx, nx) && same_block(B, i, qp.B[i], nx, nu[i]))) return false;
+    if (!(same_block(Q, i, qp.Q[i], nx, nx) && same_block(R, i, qp.R[i], nu[i], nu[i]))) return false;
   }
   return true;
 }
@@ -334,8 +348,8 @@ bool ActiveSet::condense(const OcpQp& qp) {
   rows_valid = false;  // the structure flags kept with the rows are those of the old A, B, Q, R
   A.clear(), B.clear(), Q.clear(), R.clear();  // capacity reserved: no allocation
   for (int i = 0; i <= N; ++i) {
-    if (i < N) append(A, qp.A[i]), append(B, qp.B[i]);
-    append(Q, qp.Q[i]), append(R, qp.R[i]);
+    if (i < N) keep_block(A, i, qp.A[i]), keep_block(B, i, qp.B[i]);
+    keep_block(Q, i, qp.Q[i]), keep_block(R, i, qp.R[i]);
   }
   // Gamma(j, i) = A_{j-1} ... A_{i+1} B_i.
   for (int i = 0; i < N; ++i) {
@@ -472,9 +486,10 @@ bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
   if (!a.dyn_same) a.condense(qp);  // on failure (H not positive definite) the solve goes to the interior point
   // A stage with new C, D values but the same nonzeros (a turning target's cone rows) takes the
   // values in place.
-  bool same = a.rows_valid;
+  bool same = a.rows_valid, new_values = false;
   for (int i = 0; i <= a.N && same; ++i)
-    if (!a.stage_same[i] && (same = a.same_pattern(w, qp, i))) a.row_norms(w, i);
+    if (!a.stage_same[i] && (same = a.same_pattern(w, qp, i))) a.row_norms(w, i), new_values = true;
+  if (same && new_values) a.keep_copies(qp);
   if (!same) {
     const bool ok = detail::prepare_rows(w, qp, settings_.tol);
     a.keep_rows(w, qp);

@@ -18,12 +18,25 @@
 
 namespace rvd::solver::detail {
 
+// Copies of per-stage blocks of the QP (to tell whether a solve's data are those a result was made
+// from), a block bytewise equal to the previous stage's stored once: time-invariant dynamics,
+// weights and rows keep one copy, which stays cached while a solve compares every stage with it
+// (with the caches cold, reading a copy per stage cost more than the comparisons).
+struct StageCopies {
+  Array<double> data;
+  Array<int> at, len;  // per stage: where its block starts in data, and its length
+  void carve(Arena& arena, size_t doubles, size_t stages);
+  void clear() { data.clear(); }
+  void keep(int i, const double* p, size_t n);  // after clear(), stages in order 0, 1, ...
+  bool same(int i, const double* p, size_t n) const;
+};
+
 struct ActiveSet {
   OcpQpDims dims;
   int N = 0, nx = 0, n = 0, rows = 0;
   Array<int> nu, uo;  // inputs of stage i and their offset in u
   bool condensed = false;   // H, its factor and Gamma are those of the cached A, B, Q, R
-  Array<double> A, B, Q, R;  // the data condensed (flat, stage after stage), to detect a change
+  StageCopies A, B, Q, R;  // the data condensed, to detect a change
   Array<int> go;        // Gamma: block (j, i), j > i, nx x nu_i column-major at go[i] + (j - i - 1) nx nu_i
   Array<double> gam;
   Array<double> L;      // Cholesky factor of H, n x n, row-major lower triangle
@@ -60,11 +73,12 @@ struct ActiveSet {
   Array<signed char> warm_state;
   bool warm_valid = false;
 
-  // Rows (per stage): the C, D, idxs, zs, Zs whose compression the workspace holds, at offsets
-  // co[i], doff[i], so[i]; valid when rows_valid (another row preparation clears it).
+  // Rows (per stage): the C, D, idxs, zs, Zs whose compression the workspace holds (the soft-row
+  // data at offsets so[i]); valid when rows_valid (another row preparation clears it).
   bool rows_valid = false;
-  Array<double> Cc, Dc, zsc, Zsc;
-  Array<int> idxc, co, doff, so;
+  StageCopies Cc, Dc;
+  Array<double> zsc, Zsc;
+  Array<int> idxc, so;
   Array<signed char> stage_same;  // per solve: stage i's row data equal the copy
   bool dyn_same = false;                // per solve: A, B, Q, R are the ones condensed
   Array<int> flags;              // b_tail, q_diag, r_diag of the condensed data (3 (N+1))
@@ -93,11 +107,13 @@ struct ActiveSet {
   bool same_rows(const OcpQp& qp, int i) const;
   // Stage i's nonzeros in C, D are among the entries of the rows kept (and its soft rows are the
   // same): their values (zeros included, where a kept entry is zero now) replace the kept ones in the
-  // workspace and the copy. False (values partly written) otherwise. So rows kept with a pattern
-  // wider than a period's (a caller's structural fill, FastMpcSolver::setup) take that period as is.
+  // workspace (the copies: keep_copies, once every stage is through). False (values partly
+  // written) otherwise. So rows kept with a pattern wider than a period's (a caller's structural
+  // fill, FastMpcSolver::setup) take that period as is.
   bool same_pattern(Workspace& w, const OcpQp& qp, int i);
   // Keep the rows the workspace holds now (after prepare_rows) with the QP's data they came from.
   void keep_rows(const Workspace& w, const OcpQp& qp);
+  void keep_copies(const OcpQp& qp);  // the C, D and soft-row data part of it
   // H = Gamma'Qbar Gamma + Rbar and its Cholesky factor; false when H is not positive definite.
   bool condense(const OcpQp& qp);
   // inv_norm of stage i's rows (as the workspace compresses them) from P_ii; needs condensed.
