@@ -78,9 +78,8 @@ bool equal(const double* a, const M& m, long rows, long cols) {
 // Stage i's copy in `c` is m, of shape (rows, cols).
 template <class M>
 bool same_block(const StageCopies& c, int i, const M& m, long rows, long cols) {
-  return m.rows() == rows && m.cols() == cols && c.same(i, m.data(), static_cast<size_t>(rows * cols));
+  return c.len[i] == rows * cols && equal(c.data.data() + c.at[i], m, rows, cols);
 }
-void keep_block(StageCopies& c, int i, const Matrix& m) { c.keep(i, m.data(), static_cast<size_t>(m.size())); }
 // The stage products of the active set's passes (states of a plan, the adjoint recursions), with
 // fixed sizes for the guidance's shape (nx = 6, nu = 3 on stages 0..N-1, none on stage N:
 // Workspace::fixed_kernels) and dynamic ones otherwise; inlined into the loops over the stages.
@@ -211,18 +210,15 @@ void StageCopies::carve(Arena& arena, size_t doubles, size_t stages) {
   arena.take(data, doubles, true), arena.take(at, stages), arena.take(len, stages);
 }
 
-void StageCopies::keep(int i, const double* p, size_t n) {
+void StageCopies::keep(int i, const Matrix& m) {
+  const size_t n = static_cast<size_t>(m.size());
   len[i] = static_cast<int>(n);
-  if (i > 0 && len[i - 1] == len[i] && equal(data.data() + at[i - 1], p, n)) {
+  if (i > 0 && len[i - 1] == len[i] && equal(data.data() + at[i - 1], m.data(), n)) {
     at[i] = at[i - 1];
     return;
   }
   at[i] = static_cast<int>(data.size());
-  for (size_t k = 0; k < n; ++k) data.push_back(p[k]);  // (within the capacity: every stage's length)
-}
-
-bool StageCopies::same(int i, const double* p, size_t n) const {
-  return static_cast<size_t>(len[i]) == n && equal(data.data() + at[i], p, n);
+  for (size_t k = 0; k < n; ++k) data.push_back(m.data()[k]);  // (within the capacity: every stage's length)
 }
 
 bool ActiveSet::same_rows(const OcpQp& qp, int i) const {
@@ -260,7 +256,7 @@ bool ActiveSet::same_pattern(Workspace& w, const OcpQp& qp, int i) {
 void ActiveSet::keep_copies(const OcpQp& qp) {
   Cc.clear(), Dc.clear();
   for (int i = 0; i <= N; ++i) {
-    keep_block(Cc, i, qp.C[i]), keep_block(Dc, i, qp.D[i]);
+    Cc.keep(i, qp.C[i]), Dc.keep(i, qp.D[i]);
     const int ns = so[i + 1] - so[i];
     if (ns == 0) continue;
     std::copy(qp.idxs[i].begin(), qp.idxs[i].end(), idxc.begin() + so[i]);
@@ -348,8 +344,8 @@ bool ActiveSet::condense(const OcpQp& qp) {
   rows_valid = false;  // the structure flags kept with the rows are those of the old A, B, Q, R
   A.clear(), B.clear(), Q.clear(), R.clear();  // capacity reserved: no allocation
   for (int i = 0; i <= N; ++i) {
-    if (i < N) keep_block(A, i, qp.A[i]), keep_block(B, i, qp.B[i]);
-    keep_block(Q, i, qp.Q[i]), keep_block(R, i, qp.R[i]);
+    if (i < N) A.keep(i, qp.A[i]), B.keep(i, qp.B[i]);
+    Q.keep(i, qp.Q[i]), R.keep(i, qp.R[i]);
   }
   // Gamma(j, i) = A_{j-1} ... A_{i+1} B_i.
   for (int i = 0; i < N; ++i) {

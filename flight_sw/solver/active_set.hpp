@@ -27,8 +27,7 @@ struct StageCopies {
   Array<int> at, len;  // per stage: where its block starts in data, and its length
   void carve(Arena& arena, size_t doubles, size_t stages);
   void clear() { data.clear(); }
-  void keep(int i, const double* p, size_t n);  // after clear(), stages in order 0, 1, ...
-  bool same(int i, const double* p, size_t n) const;
+  void keep(int i, const Matrix& m);  // after clear(), stages in order 0, 1, ...
 };
 
 struct ActiveSet {

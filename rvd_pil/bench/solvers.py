@@ -71,7 +71,16 @@ AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |
 
 # ------------------------------------------------------------------------------------------------
 # One function per solver: (qp, prepared forms) -> (objective, status, solve time in us, setup time
-# in us as the solver reports it, nan if it does not)
+# in us as the solver reports it, nan if it does not). Each calls before_timed_solve(forms) between
+# its set-up and the call its clock times.
+
+def before_timed_solve(forms: dict) -> None:
+    """What main() asks to run just before a timed solve, after the solver's untimed set-up (with
+    --cold-cache: the cache eviction, so that no solver's set-up warms its data for its solve)."""
+    hook = forms.get("_before_solve")
+    if hook:
+        hook()
+
 
 def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
     from rvd_pil import flight_sw
@@ -85,6 +94,7 @@ def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
         t0 = time.perf_counter()
         solver.setup(*qp.args()[:-1], **qp.kw())
         forms[key + ("setup",)] = (time.perf_counter() - t0) * 1e6 if mode == "converged" else math.nan
+    before_timed_solve(forms)
     r = forms[key].solve(*qp.args(), **qp.kw())
     forms["_iterations"] = r.iterations if r.iterations else r.active_set_changes  # the active set: its changes
     forms["_bytes"] = forms[key].workspace_bytes
@@ -106,6 +116,7 @@ def run_proxsuite(qp: OcpQpData, forms: dict, dense: bool):
     solver.settings.verbose = False
     solver.settings.compute_timings = True
     solver.init(*mats, np.full(nin, -1e20), s.din)
+    before_timed_solve(forms)
     solver.solve()
     info = solver.results.info
     ok = info.status == proxsuite.proxqp.PROXQP_SOLVED
@@ -123,6 +134,7 @@ def run_osqp(qp: OcpQpData, forms: dict):
     solver = osqp.OSQP()
     solver.setup(sp.triu(s.H).tocsc(), s.g, A, lower, upper, eps_abs=1e-6, eps_rel=1e-6, polishing=True,
                  max_iter=200000, verbose=False)
+    before_timed_solve(forms)
     res = solver.solve()
     ok = res.info.status in ("solved", "solved inaccurate")
     x, u = s.unstack(np.asarray(res.x), qp.x0) if res.x is not None else (None, None)
@@ -135,8 +147,11 @@ def run_daqp(qp: OcpQpData, forms: dict):
     import daqp
     c = forms["condensed"]
     m = len(c.h)
-    U, _, exitflag, info = daqp.solve(c.H, c.g, c.G, c.h, np.full(m, -1e30), np.zeros(m, dtype=np.int32),
-                                      eps_prox=-1.0, primal_tol=1e-6, dual_tol=1e-6, iter_limit=100000)
+    model = daqp.Model()  # a new one per solve: a model solved before starts from its last working set
+    model.settings = {**model.settings, "eps_prox": -1.0, "primal_tol": 1e-6, "dual_tol": 1e-6, "iter_limit": 100000}
+    model.setup(c.H, c.g, c.G, c.h, np.full(m, -1e30), np.zeros(m, dtype=np.int32))
+    before_timed_solve(forms)
+    U, _, exitflag, info = model.solve()
     ok = exitflag == 1
     x, u = c.unstack(np.asarray(U), qp)
     return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else f"exitflag {exitflag}"), \
@@ -150,6 +165,7 @@ def run_piqp(qp: OcpQpData, forms: dict):
     solver.settings.verbose = False
     solver.settings.compute_timings = True
     solver.setup(s.H, s.g, s.Aeq, s.beq, s.Cin, None, s.din)
+    before_timed_solve(forms)
     status = solver.solve()
     ok = status == piqp.PIQP_SOLVED
     x, u = s.unstack(np.asarray(solver.result.x), qp.x0)
@@ -166,6 +182,7 @@ def run_clarabel(qp: OcpQpData, forms: dict):
     settings = clarabel.DefaultSettings()
     settings.verbose = False
     solver = clarabel.DefaultSolver(sp.triu(s.H).tocsc(), s.g, A, b, cones, settings)
+    before_timed_solve(forms)
     sol = solver.solve()
     ok = str(sol.status) == "Solved"
     x, u = s.unstack(np.asarray(sol.x), qp.x0)
@@ -179,6 +196,7 @@ def run_hpipm(qp: OcpQpData, forms: dict, mode: str = "speed", init: str = "cold
     solver = forms.get(key)
     if solver is None:
         solver = forms[key] = HpipmSolver(qp, mode=mode, init=init, mu0="cost" if init == "rollout" else None)
+    before_timed_solve(forms)
     st, it, t_us, x, u = solver.solve()
     forms["_iterations"] = it
     ok = st == 0
@@ -234,10 +252,10 @@ def reference(qp: OcpQpData, forms: dict):
 
 class CacheEvictor:
     """Writes a buffer twice the size of this machine's caches (all levels, from sysfs; 64 MiB when it
-    does not say) before a timed solve, so that the solve finds none of its code or data cached: the
-    cost of a solver's memory footprint, which a guidance solving once per control period, with its
-    navigation and link in between, pays on every solve. (The repeats of one QP otherwise run back
-    to back and find everything cached.)"""
+    does not say) before a timed solve, after the solver's untimed set-up (before_timed_solve), so
+    that the solve finds none of its code or data cached: the cost of a solver's memory footprint,
+    which a guidance solving once per control period, with its navigation and link in between, pays
+    on every solve. (The repeats of one QP otherwise run back to back and find everything cached.)"""
 
     def __init__(self):
         total = 0
@@ -447,12 +465,11 @@ def main(argv=None) -> int:
             print(f"  skipped a {key} QP: the reference ({who}) says {ref.status}; flight_sw says {ours}")
             continue
         count[key] += 1
+        forms["_before_solve"] = evict
         for name in names:
             for rep in range(args.repeats):
                 forms.pop("_iterations", None)
                 forms.pop("_bytes", None)
-                if evict:
-                    evict()
                 obj, status, t_us, setup_us = SOLVERS[name](qp, forms)
                 if "_bytes" in forms:
                     arena[key + (name,)] = forms["_bytes"]
