@@ -191,8 +191,11 @@ def test_dual_residual_is_the_stationarity_of_the_returned_iterate(phase):
     assert early.dual_residual > 1e-4  # two iterations are far from stationary: the figure measures something
     done = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), tol=1e-8)
     assert done.status == "solved"
-    assert stationarity_residual(qp, done) <= 1e-8 * max(1.0, max(np.abs(r).max() for r in qp.q))
-    assert done.dual_residual == pytest.approx(stationarity_residual(qp, done), rel=1e-3, abs=1e-12)
+    scale = max(1.0, max(np.abs(r).max() for r in qp.q))
+    assert stationarity_residual(qp, done) <= 1e-8 * scale
+    # At the optimum both figures sit near the rounding floor, where two summation orders (ours and
+    # numpy's BLAS) differ by rounding: 2.55e-11 against 2.18e-11 on this QP with one numpy build.
+    assert done.dual_residual == pytest.approx(stationarity_residual(qp, done), rel=1e-3, abs=1e-11 * scale)
 
 
 def test_nan_gives_invalid_input():
