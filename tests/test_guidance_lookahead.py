@@ -99,3 +99,45 @@ def test_lookahead_for_the_active_set(case, approach_n):
     assert cmds_cold[k].active_set_changes > 0
     assert entry.active_set_changes <= 0.5 * cmds_cold[k].active_set_changes, \
         (entry.active_set_changes, cmds_cold[k].active_set_changes)
+
+
+def fly_into_docking(p, case, noise_m=0.0, seed=0):
+    """Closed loop (sensor noise on the position the guidance is given, when asked) until the first
+    docking command; the commands and the guidance right after it."""
+    g = fsw.Guidance(p)
+    c = fsw.dissertation_case(case)
+    rng = np.random.default_rng(seed)
+    x, t, n = np.array(c["x0"], float), 0.0, p.mean_motion_rad_s()
+    cmds = []
+    for k in range(600):
+        seen = x + np.r_[rng.normal(0.0, noise_m, 3), 0.0, 0.0, 0.0]
+        cmd = g.step(fsw.NavInput(k, t, seen, c["q_lvlh_body"], c["omega_body_rad_s"]))
+        cmds.append(cmd)
+        if cmd.phase == fsw.Phase.Docking:
+            return cmds, g
+        x = fsw.cw_stm(n, cmd.period_s) @ (x + np.r_[0.0, 0.0, 0.0, cmd.dv_cmd_mps])
+        t += cmd.period_s
+    raise AssertionError("never reached the docking phase")
+
+
+@pytest.mark.parametrize("case,docking_n,noise_m", [(1, 5, 0.0), (1, 12, 0.05), (2, 30, 0.0), (3, 12, 0.05)])
+def test_docking_rows_are_ready_before_the_first_docking_solve(case, docking_n, noise_m):
+    """The guidance compresses the docking QP's rows for its docking solver in an earlier step (the
+    phase's rows depend on the target's attitude alone), so the first docking solve keeps them (a
+    turning target's, Case 3, take new values in place): it does not compress its rows itself, where
+    a fresh solver given the same QP does. Its plan is the fresh solver's and Clarabel's."""
+    p = fsw.GuidanceParams()
+    p.docking.N = docking_n
+    cmds, g = fly_into_docking(p, case, noise_m)
+    first = cmds[-1]
+    assert first.status == fsw.StepStatus.Ok and first.solver_status == "solved"
+    assert first.iterations == 0 and first.active_set_changes > 0  # the active set answered, cold
+    assert not first.rows_compressed
+    qp = g.last_qp(fsw.Phase.Docking)
+    fresh = fsw.solve_ocp_qp(**qp, tol=1e-8)
+    assert fresh.status == "solved" and fresh.rows_compressed
+    np.testing.assert_allclose(first.dv_cmd_mps, fresh.u[0], atol=1e-9)
+    status, u_ref, _ = solve_clarabel(qp)
+    assert status == "Solved"
+    u_max = p.docking.u_max_mps
+    np.testing.assert_allclose(first.dv_cmd_mps, np.clip(u_ref[0][:3], -u_max, u_max), atol=1e-6)

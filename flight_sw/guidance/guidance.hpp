@@ -131,6 +131,9 @@ class Guidance {
   void look_ahead(const solver::FastMpcSolver& rendezvous, const TargetState& target, const EstimateQuality& quality,
                   double budget_left_us, bool carried, solver::Info& info);
   bool lookahead_warm_ = false;  // the approach solver holds this step's look-ahead iterate
+  // The docking solver's rows were prepared during the approach (the docking QP built for the
+  // target then): the first docking solve keeps them instead of compressing every row itself.
+  bool docking_rows_ready_ = false;
 };
 
 // The dissertation's scenarios (Table 3.2; sec 3.6): 1 V-bar, 2 R-bar, 3 rotating target (spin about body z).

@@ -348,6 +348,7 @@ void bind_guidance(py::module_& m) {
       .def_property_readonly("lookahead_status", [](const Command& c) { return std::string(solver::to_string(c.lookahead.status)); })
       .def_property_readonly("lookahead_iterations", [](const Command& c) { return c.lookahead.iterations; })
       .def_property_readonly("active_set_changes", [](const Command& c) { return c.solver.active_set_changes; })
+      .def_property_readonly("rows_compressed", [](const Command& c) { return c.solver.rows_compressed; })
       .def_property_readonly("lookahead_active_set_changes", [](const Command& c) { return c.lookahead.active_set_changes; })
       .def("__repr__", [](const Command& c) {
         std::ostringstream s;

@@ -23,6 +23,7 @@ struct SolveResult {
   Matrix pi;               // N x nx dynamics multipliers
   std::string status;
   int iterations = 0, back_solves = 0, active_set_changes = 0;
+  bool rows_compressed = false;
   double objective = 0.0, primal_residual = 0.0, dual_residual = 0.0, solve_time_us = 0.0;
 };
 
@@ -160,6 +161,7 @@ SolveResult collect(const FastMpcSolver& solver) {
   res.iterations = info.iterations;
   res.back_solves = info.back_solves;
   res.active_set_changes = info.active_set_changes;
+  res.rows_compressed = info.rows_compressed;
   res.objective = info.objective;
   res.primal_residual = info.primal_residual;
   res.dual_residual = info.dual_residual;
@@ -252,6 +254,9 @@ void bind_solver(py::module_& m) {
       .def_readonly("back_solves", &SolveResult::back_solves, "solves with those factors")
       .def_readonly("active_set_changes", &SolveResult::active_set_changes,
                     "rows that entered or left the active set (dual active-set method; 0: interior point only)")
+      .def_readonly("rows_compressed", &SolveResult::rows_compressed,
+                    "the solve compressed its rows itself (interior point: always; active set: when they differ "
+                    "from the rows kept by setup() or an earlier solve)")
       .def_readonly("objective", &SolveResult::objective, "objective at the returned iterate")
       .def_readonly("primal_residual", &SolveResult::primal_residual,
                     "inf-norm of the dynamics residual and of the inequality violation")

@@ -487,6 +487,7 @@ bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
     if (!a.stage_same[i] && (same = a.same_pattern(w, qp, i))) a.row_norms(w, i), new_values = true;
   if (same && new_values) a.keep_copies(qp);
   if (!same) {
+    info_.rows_compressed = true;
     const bool ok = detail::prepare_rows(w, qp, settings_.tol);
     a.keep_rows(w, qp);
     return ok;

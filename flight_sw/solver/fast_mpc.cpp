@@ -23,6 +23,7 @@ FastMpcSolver::FastMpcSolver(const OcpQpDims& dims, const Settings& settings) : 
   kernels_ = &detail::kernels_for(*work_);
   const int N = dims_.N;
   x_.assign(N + 1, Vector::Zero(dims_.nx));
+  setup_x0_ = Vector::Zero(dims_.nx);
   pi_.assign(N, Vector::Zero(dims_.nx));
   for (int i = 0; i <= N; ++i) {
     u_.push_back(Vector::Zero(dims_.nu[i]));
@@ -32,7 +33,7 @@ FastMpcSolver::FastMpcSolver(const OcpQpDims& dims, const Settings& settings) : 
 }
 
 void FastMpcSolver::setup(const OcpQp& qp) {
-  if (!dense_ || !inputs_ok(qp, Vector::Zero(dims_.nx))) return;
+  if (!dense_ || !inputs_ok(qp, setup_x0_)) return;
   if (!dense_->same_data(qp)) dense_->condense(qp);
   // The rows too, compressed and kept as the first solve would keep them: a solve then redoes only
   // what d and x0 change. (prepare_rows reads x0 only for stage 0's constant rows, which every
@@ -106,6 +107,7 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
     const detail::Kernels& K = *kernels_;
     std::copy(x0.data(), x0.data() + w.nx, w.x);
     if (dense_ && !kept) dense_->rows_valid = false;  // prepare_rows overwrites the rows kept
+    info_.rows_compressed = !kept;
     if (!(kept ? prepare_active_set(qp) : detail::prepare_rows(w, qp, settings_.tol))) {
       st = Status::Infeasible;
     } else {

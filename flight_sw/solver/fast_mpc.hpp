@@ -56,7 +56,8 @@ class FastMpcSolver {
   // The rows are kept with qp's nonzero pattern: a later QP whose nonzeros are among those (values
   // changed, some zero) takes the fast path, any other nonzero prepares the rows again. A caller
   // whose rows change per period can pass a structural fill (nonzeros wherever a period may put one),
-  // at the cost of carrying its zeros through every later solve.
+  // at the cost of carrying its zeros through every later solve. No heap allocation either, so a
+  // guidance may call it within a step (for the next phase's rows).
   void setup(const OcpQp& qp);
   const Info& info() const { return info_; }
   const std::vector<Vector>& x() const { return x_; }  // N+1 states of the last solve
@@ -101,6 +102,7 @@ class FastMpcSolver {
   const detail::Kernels* kernels_ = nullptr;
   std::unique_ptr<detail::ActiveSet> dense_;  // the condensed QP, when the inputs are few enough
   std::vector<Vector> x_, u_, lam_, pi_, sig_;  // the solution, sized once
+  Vector setup_x0_;  // zeros: setup()'s x0 for the input checks, so that it allocates nothing either
   TimePoint t_start_;  // on the flight clock (elapsed.hpp)
   bool has_warm_ = false;
   bool shifted_ = false;  // the warm plan was shifted: its tail x_N needs the new QP's dynamics

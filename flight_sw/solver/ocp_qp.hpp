@@ -80,6 +80,8 @@ struct Info {
   int back_solves = 0;           // solves with those factors (predictor, correctors, refinement)
   int active_set_changes = 0;    // rows that entered or left the active set (dual active-set method,
                                  // settings.hpp); iterations = 0 when it answered alone
+  bool rows_compressed = false;  // this solve compressed its rows itself (the interior point always;
+                                 // the active set when they differ from the ones kept, e.g. by setup())
   double primal_residual = 0.0;  // inf-norm of dynamics residuals and hard-row violations
   double dual_residual = 0.0;    // inf-norm of the stationarity residual
   double objective = 0.0;        // objective at the returned iterate (constant terms excluded),
