@@ -1,13 +1,15 @@
-"""Interior-point iterations of the rendezvous in noisy in-process closed loops: `flight_sw.Guidance`
-against the impulsive CW plant, with Gaussian noise on the state it is given (position sigma
-noise_scale x (0.2 m + 0.2 % of the range), velocity sigma noise_scale x 2 mm/s) and a per-axis
-thrust error on every commanded delta-v. Cases 1-3 of the dissertation, `--seeds` seeds each, at the
-three horizon sets. Per horizon: warm solves' mean, median, p99 and max iterations, the first
-(cold) solve's mean / max, and the solves of 13 iterations or more; then the iterations in all.
-Prints figures; asserts nothing.
+"""Solver work per guidance step in noisy in-process closed loops: `flight_sw.Guidance` against the
+impulsive CW plant, with Gaussian noise on the state it is given (position sigma noise_scale x
+(0.2 m + 0.2 % of the range), velocity sigma noise_scale x 2 mm/s) and a per-axis thrust error on
+every commanded delta-v. Cases 1-3 of the dissertation, `--seeds` seeds each, at the three horizon
+sets. Per horizon: the warm solves' mean, median, p99 and max work, the first (cold) solve's mean /
+max, and the solves of 13 or more; then the work in all. The work is the rendezvous' interior-point
+iterations (`--phase rendezvous`, the default) or the docking active set's row changes (`--phase
+docking`, the loop flown until docked). Prints figures; asserts nothing.
 
     python -m rvd_pil.bench.noisy_loops                                   # noise 0.02, thrust error 3 %
     python -m rvd_pil.bench.noisy_loops --noise-scale 0.1 --thrust-error 0 --seeds 6 --show-above 20
+    python -m rvd_pil.bench.noisy_loops --phase docking --seeds 4
 """
 from __future__ import annotations
 
@@ -20,9 +22,11 @@ from rvd_pil import flight_sw as fsw
 HORIZON_SETS = ((15, 5, 5), (30, 15, 12), (45, 30, 30))
 
 
-def rendezvous_iterations(case: int, horizons: tuple[int, int, int], seed: int, noise_scale: float,
-                          thrust_error: float, max_steps: int = 400) -> list[tuple[int, int, str]]:
-    """(step, interior-point iterations, guidance status) of every rendezvous step of one loop."""
+def phase_work(case: int, horizons: tuple[int, int, int], seed: int, noise_scale: float, thrust_error: float,
+               phase: str, max_steps: int = 600) -> list[tuple[int, int, str]]:
+    """(step, work, guidance status) of every step of `phase` in one loop: interior-point iterations in
+    the rendezvous, active-set row changes in docking."""
+    want = fsw.Phase.Rendezvous if phase == "rendezvous" else fsw.Phase.Docking
     rng = np.random.default_rng(seed)
     p = fsw.GuidanceParams()
     p.rendezvous.N, p.approach.N, p.docking.N = horizons
@@ -34,9 +38,11 @@ def rendezvous_iterations(case: int, horizons: tuple[int, int, int], seed: int, 
         rho = np.linalg.norm(x[:3])
         seen = x + np.r_[rng.normal(0.0, noise_scale * (0.2 + 0.002 * rho), 3), rng.normal(0.0, noise_scale * 0.002, 3)]
         cmd = g.step(fsw.NavInput(k, t, seen, c["q_lvlh_body"], c["omega_body_rad_s"]))
-        if cmd.phase != fsw.Phase.Rendezvous:
+        if cmd.status == fsw.StepStatus.Docked or (want == fsw.Phase.Rendezvous and cmd.phase != want):
             break
-        out.append((k, cmd.iterations, str(cmd.status).split(".")[-1]))
+        if cmd.phase == want:
+            work = cmd.iterations if want == fsw.Phase.Rendezvous else cmd.active_set_changes
+            out.append((k, work, str(cmd.status).split(".")[-1]))
         dv = np.asarray(cmd.dv_cmd_mps) * (1.0 + rng.normal(0.0, thrust_error, 3))
         x = fsw.cw_stm(n, cmd.period_s) @ (x + np.r_[0.0, 0.0, 0.0, dv])
         t += cmd.period_s
@@ -48,27 +54,34 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--noise-scale", type=float, default=0.02, help="sensor noise scale (default 0.02)")
     ap.add_argument("--thrust-error", type=float, default=0.03, help="per-axis thrust error sigma, fraction (default 0.03)")
     ap.add_argument("--seeds", type=int, default=6, help="seeds per case and horizon set (default 6)")
-    ap.add_argument("--show-above", type=int, default=0, help="list every solve of more iterations than this")
+    ap.add_argument("--show-above", type=int, default=0, help="list every solve of more work than this")
+    ap.add_argument("--phase", choices=("rendezvous", "docking"), default="rendezvous",
+                    help="rendezvous: interior-point iterations (default); docking: active-set row changes")
     a = ap.parse_args(argv)
     if a.noise_scale < 0 or a.thrust_error < 0 or a.seeds < 1:
         ap.error("--noise-scale and --thrust-error must be >= 0, --seeds >= 1")
-    print(f"noise scale {a.noise_scale}, thrust error {a.thrust_error:.0%}, Cases 1-3 x {a.seeds} seeds")
+    unit = "iterations" if a.phase == "rendezvous" else "row changes"
+    print(f"{a.phase} {unit}; noise scale {a.noise_scale}, thrust error {a.thrust_error:.0%}, Cases 1-3 x {a.seeds} seeds")
     total = 0
     for hz in HORIZON_SETS:
+        n_phase = hz[0] if a.phase == "rendezvous" else hz[2]
         warm, first = [], []
         for case in (1, 2, 3):
             for seed in range(a.seeds):
-                steps = rendezvous_iterations(case, hz, seed, a.noise_scale, a.thrust_error)
+                steps = phase_work(case, hz, seed, a.noise_scale, a.thrust_error, a.phase)
+                if not steps:
+                    print(f"  case {case} N {n_phase} seed {seed}: no {a.phase} step")
+                    continue
                 total += sum(it for _, it, _ in steps)
                 first.append(steps[0][1])
                 warm += [it for _, it, _ in steps[1:]]
                 for k, it, status in steps:
                     if a.show_above and it > a.show_above:
-                        print(f"  case {case} N {hz[0]} seed {seed} step {k}: {it} iterations ({status})")
+                        print(f"  case {case} N {n_phase} seed {seed} step {k}: {it} {unit} ({status})")
         w = np.array(warm)
-        print(f"N {hz[0]:2d}: warm mean {w.mean():.2f}, median {np.median(w):.0f}, p99 {np.percentile(w, 99):.0f}, "
+        print(f"N {n_phase:2d}: warm mean {w.mean():.2f}, median {np.median(w):.0f}, p99 {np.percentile(w, 99):.0f}, "
               f"max {w.max()}; first {np.mean(first):.1f} / {max(first)}; >= 13: {(w >= 13).sum()} of {len(w)}")
-    print(f"iterations in all: {total}")
+    print(f"{unit} in all: {total}")
     return 0
 
 
