@@ -131,8 +131,8 @@ class Guidance {
   void look_ahead(const solver::FastMpcSolver& rendezvous, const TargetState& target, const EstimateQuality& quality,
                   double budget_left_us, bool carried, solver::Info& info);
   bool lookahead_warm_ = false;  // the approach solver holds this step's look-ahead iterate
-  // The docking solver's rows were prepared during the approach (the docking QP built for the
-  // target then): the first docking solve keeps them instead of compressing every row itself.
+  // The docking solver's rows were compressed in an earlier step (the docking QP built for the
+  // target then, guidance.cpp): the first docking solve keeps them instead of compressing them itself.
   bool docking_rows_ready_ = false;
 };
 
