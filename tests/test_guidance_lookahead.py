@@ -10,22 +10,31 @@ from rvd_pil import flight_sw as fsw
 from support.guidance_geometry import solve_clarabel
 
 
+def closed_loop(p, case, steps, noise_m=0.0, seed=0):
+    """The guidance against the impulsive CW plant (Gaussian noise of noise_m on the position it is given,
+    when asked): yields (step, command, guidance) after each step."""
+    g = fsw.Guidance(p)
+    c = fsw.dissertation_case(case)
+    rng = np.random.default_rng(seed)
+    x, t, n = np.array(c["x0"], float), 0.0, p.mean_motion_rad_s()
+    for k in range(steps):
+        seen = x + np.r_[rng.normal(0.0, noise_m, 3), 0.0, 0.0, 0.0] if noise_m > 0.0 else x
+        cmd = g.step(fsw.NavInput(k, t, seen, c["q_lvlh_body"], c["omega_body_rad_s"]))
+        yield k, cmd, g
+        x = fsw.cw_stm(n, cmd.period_s) @ (x + np.r_[0.0, 0.0, 0.0, cmd.dv_cmd_mps])
+        t += cmd.period_s
+
+
 def fly_into_approach(p, case, approach_steps=3):
     """Closed loop until `approach_steps` approach commands have been given; the commands, and the guidance
     right after the entry step with its entry QP."""
-    g = fsw.Guidance(p)
-    c = fsw.dissertation_case(case)
-    x, t, n = np.array(c["x0"], float), 0.0, p.mean_motion_rad_s()
     cmds, entry = [], None
-    for k in range(400):
-        cmd = g.step(fsw.NavInput(k, t, x, c["q_lvlh_body"], c["omega_body_rad_s"]))
+    for k, cmd, g in closed_loop(p, case, 400):
         cmds.append(cmd)
         if cmd.phase == fsw.Phase.Approach and entry is None:
             entry = (k, g.last_qp(fsw.Phase.Approach))
         if entry is not None and k - entry[0] + 1 >= approach_steps:
             return cmds, entry
-        x = fsw.cw_stm(n, cmd.period_s) @ (x + np.r_[0.0, 0.0, 0.0, cmd.dv_cmd_mps])
-        t += cmd.period_s
     raise AssertionError("never reached the approach phase")
 
 
@@ -101,22 +110,13 @@ def test_lookahead_for_the_active_set(case, approach_n):
         (entry.active_set_changes, cmds_cold[k].active_set_changes)
 
 
-def fly_into_docking(p, case, noise_m=0.0, seed=0):
-    """Closed loop (sensor noise on the position the guidance is given, when asked) until the first
-    docking command; the commands and the guidance right after it."""
-    g = fsw.Guidance(p)
-    c = fsw.dissertation_case(case)
-    rng = np.random.default_rng(seed)
-    x, t, n = np.array(c["x0"], float), 0.0, p.mean_motion_rad_s()
+def fly_into_docking(p, case, noise_m=0.0):
+    """Closed loop until the first docking command; the commands and the guidance right after it."""
     cmds = []
-    for k in range(600):
-        seen = x + np.r_[rng.normal(0.0, noise_m, 3), 0.0, 0.0, 0.0]
-        cmd = g.step(fsw.NavInput(k, t, seen, c["q_lvlh_body"], c["omega_body_rad_s"]))
+    for _, cmd, g in closed_loop(p, case, 600, noise_m):
         cmds.append(cmd)
         if cmd.phase == fsw.Phase.Docking:
             return cmds, g
-        x = fsw.cw_stm(n, cmd.period_s) @ (x + np.r_[0.0, 0.0, 0.0, cmd.dv_cmd_mps])
-        t += cmd.period_s
     raise AssertionError("never reached the docking phase")
 
 

@@ -115,7 +115,7 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
         // the penalty.
         w.sig[k] = soft ? std::max(viol, 0.0) + 1.0 : 0.0;
         w.t[k] = std::max(std::abs(w.sig[k] - viol), 1.0);
-        const double dual = soft && w.zs[k] > 0.0 ? 0.5 * w.zs[k] : gs0;
+        const double dual = w.zs[k] > 0.0 ? 0.5 * w.zs[k] : gs0;  // (a soft row's)
         w.lam[k] = soft ? dual : S.cold_complementarity * gs0 / w.t[k];
         w.mu[k] = soft ? dual : 0.0;
       } else {
