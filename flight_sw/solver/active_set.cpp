@@ -133,12 +133,34 @@ struct Stage {
       adjoint_x(qp, i, a.nx, a.xf.data() + i * a.nx, next, a.lamx.data() + i * a.nx);
     }
   }
-  // Dynamics multipliers pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i (the residuals' conventions).
-  static void multipliers(const ActiveSet& a, Workspace& w, const OcpQp& qp) {
-    for (int i = a.N; i >= 1; --i) {
-      adjoint_x(qp, i, a.nx, w.x + i * a.nx, i < a.N ? w.pi + i * a.nx : nullptr, w.pi + (i - 1) * a.nx);
-      detail::gt_mul_add(w, i, w.lam, w.ut + w.uo[i], w.pi + (i - 1) * a.nx);
+  // The dynamics multipliers by the adjoint recursion pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i
+  // (the residuals' conventions: the state stationarity holds by construction) and, on the way, the
+  // input stationarity rdu_i = R_i u_i + r_i + B_i'pi_i + D_i'lam_i. Returns the cost gradient's
+  // largest entry (the dual residual's scale).
+  static double multipliers(const ActiveSet& a, Workspace& w, const OcpQp& qp) {
+    const int nx = a.nx;
+    double gscale = 0.0;
+    for (int i = a.N; i >= 0; --i) {
+      const int m = a.nu[i];
+      const double* next = i < a.N ? w.pi + i * nx : nullptr;
+      if (m > 0) {
+        Eigen::Map<Eigen::Matrix<double, NU, 1>> g(w.rdu + a.uo[i], m);
+        g = CMap<NU, 1>(qp.r[i].data(), m);
+        g.noalias() += CMap<NU, NU>(qp.R[i].data(), m, m).lazyProduct(CMap<NU, 1>(w.u + a.uo[i], m));
+        gscale = std::max(gscale, g.cwiseAbs().maxCoeff());
+        if (next) g.noalias() += CMap<NX, NU>(qp.B[i].data(), nx, m).transpose().lazyProduct(CMap<NX, 1>(next, nx));
+      }
+      double* pi_prev = i > 0 ? w.pi + (i - 1) * nx : nullptr;
+      if (pi_prev) {
+        XMap o(pi_prev, nx);
+        o = CMap<NX, 1>(qp.q[i].data(), nx);
+        o.noalias() += CMap<NX, NX>(qp.Q[i].data(), nx, nx).lazyProduct(CMap<NX, 1>(w.x + i * nx, nx));
+        gscale = std::max(gscale, o.cwiseAbs().maxCoeff());
+        if (next) o.noalias() += CMap<NX, NX>(qp.A[i].data(), nx, nx).transpose().lazyProduct(CMap<NX, 1>(next, nx));
+      }
+      detail::gt_mul_add(w, i, w.lam, w.rdu + a.uo[i], pi_prev);
     }
+    return gscale;
   }
 };
 using FixedStage = Stage<6, 3>;
@@ -170,7 +192,7 @@ void ActiveSet::carve(Arena& arena) {
   arena.take(f, un), arena.take(uc, un), arena.take(tmp, std::max(un + 1, static_cast<size_t>(nx)));
   arena.take(xf, n1 * nx), arena.take(lamx, n1 * nx);
   arena.take(po, n1 * n1), arena.take(P, pair_products(d));
-  arena.take(row_stage, nr), arena.take(inv_norm, nr);
+  arena.take(row_stage, nr), arena.take(inv_norm, nr), arena.take(scan0, nr);
   const size_t c = static_cast<size_t>(cap), nnz = nr * (nx + nu_max);
   arena.take(Uw, c * un), arena.take(Kl, c * c);
   arena.take(e, c), arena.take(lam, c), arena.take(lam_star, c), arena.take(dir, c), arena.take(slot_row, c);
@@ -311,6 +333,7 @@ void ActiveSet::row_norms(const Workspace& w, int i) {
   for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
     const double sq = gram(w, k, k);
     inv_norm[k] = sq > 0.0 ? 1.0 / std::sqrt(sq) : std::numeric_limits<double>::infinity();  // no input moves it: first
+    scan0[k] = ub[k] == 0.0 ? 0.0 : inv_norm[k];
   }
 }
 
@@ -549,12 +572,9 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   else
     detail::AnyStage::gradient(a, qp, w.x, w.ut, w.tm);
   const double* Hinv = a.Hinv.data();
-  std::fill(a.uc.begin(), a.uc.end(), 0.0);  // uc = -H^-1 f
-  for (int j = 0; j < n; ++j) {
-    const double fj = -a.f[j];
-    const double* col = Hinv + static_cast<size_t>(j) * n;
-    for (int r = 0; r < n; ++r) a.uc[r] += fj * col[r];
-  }
+  Eigen::Map<Vector> uc(a.uc.data(), n);  // uc = -H^-1 f (a product into zeros: no temporary)
+  uc.setZero();
+  uc.noalias() -= Eigen::Map<const Matrix>(Hinv, n, n) * Eigen::Map<const Vector>(a.f.data(), n);
   // Per row: the weight of g'z - d in the search for the entering row (w.inv_s as scratch: 1 / |m_k|
   // at lam = 0, - that at lam = ub, 0 in W or never).
   double* scan = w.inv_s;
@@ -563,7 +583,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     scan[k] = a.ub[k] == 0.0 || st == 1 ? 0.0 : st == 0 ? a.inv_norm[k] : -a.inv_norm[k];
   };
   std::fill(a.state.begin(), a.state.end(), 0);  // constant rows stay at 0 and are never scanned
-  for (int k : a.active_rows) set_state(k, 0);
+  std::copy(a.scan0.begin(), a.scan0.end(), scan);  // set_state(k, 0) of every row
   const double violation_tol = 0.01 * settings_.tol;  // a row counts as violated beyond this x max(1, |d|)
   const int max_iter = settings_.active_set_max_iter;
   int p = 0;  // rows in W
@@ -625,8 +645,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   };
   // The row farthest outside its half-space in v (violation / |m_k|; a box row's G z: one product)
   // of those violated by more than the tolerance, in one pass per kind of row: lam = 0 and g'z > d,
-  // or a soft row at lam = zs with g'z < d; of equals the first in row order. Its G z is left in
-  // w.gz. (By the distance, not the violation: rows of late stages combine many inputs, their
+  // or a soft row at lam = zs with g'z < d; of equals the first in row order. Every active row's
+  // G z is left in w.gz. (By the distance, not the violation: rows of late stages combine many inputs, their
   // violations are large, and taking them first makes the working set wander; README.)
   // Besides it, up to Settings::active_set_bulk more violated hard rows at lam = 0 (the next by
   // distance, kept in more_*) may join W in the same pass. Cold solves only: a warm start's working
@@ -638,12 +658,13 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   double more_gz[Settings::kMaxActiveSetBulk], more_dist[Settings::kMaxActiveSetBulk];
   auto most_violated = [&]() {
     int enter = -1;
-    double worst = 0.0, gz_enter = 0.0;
+    double worst = 0.0;
     n_more = 0;
     auto consider = [&](int k, double gz) {
+      w.gz[k] = gz;  // (the last scan, at the answer, leaves every active row's G z for the outputs)
       const double r = gz - w.dv[k], dist = r * scan[k];
       if (!(dist > 0.0) || !(std::abs(r) > violation_tol * std::max(1.0, std::abs(w.dv[k])))) return;
-      if (dist > worst || (dist == worst && k < enter)) worst = dist, enter = k, gz_enter = gz;
+      if (dist > worst || (dist == worst && k < enter)) worst = dist, enter = k;
       if (bulk_max > 0 && a.state[k] == 0 && a.ub[k] == inf && (n_more < bulk_max || dist > more_dist[n_more - 1])) {
         int j = n_more < bulk_max ? n_more++ : n_more - 1;  // insertion into the list, largest first
         for (; j > 0 && more_dist[j - 1] < dist; --j)
@@ -658,7 +679,6 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
       for (const size_t end = a.multi_end[j]; e < end; ++e) acc += w.val[a.multi_pos[e]] * *a.multi_src[e];
       consider(a.multi_row[j], acc);
     }
-    if (enter >= 0) w.gz[enter] = gz_enter;
     return enter;
   };
 
@@ -882,22 +902,43 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   if (st != Status::Solved) return st;
   std::copy(a.state.begin(), a.state.end(), a.warm_state.begin());
   a.warm_valid = true;
-  // Multipliers per row, soft slacks and their duals, and the dynamics multipliers by the adjoint
-  // recursion pi_{i-1} = Q_i x_i + q_i + A_i'pi_i + C_i'lam_i (the residuals' conventions).
-  detail::g_mul_all(w, w.u, w.x, w.gz);  // every row's G z (the constant rows': C x0 on stage 0, else 0)
-  for (int k = 0; k < w.rows; ++k) {
-    w.lam[k] = a.state[k] == 2 ? a.ub[k] : 0.0;
-    if (w.act[k] > 0.0 && w.soft[k] > 0.0) w.sig[k] = std::max(w.gz[k] - w.dv[k], 0.0);
+  // The outputs at the answer, which solve() then forms no more: per row the multiplier, soft slack
+  // and its dual, and slack, in one pass; the primal residual of the hard rows, the dual residual of
+  // the soft ones and the slacks the objective counts (sigt); then the dynamics multipliers and the
+  // input stationarity. The last scan was at the answer and left every active row's G z in w.gz; a
+  // constant row's is C x0 on stage 0, else 0. The states are the inputs' rollout and the dynamics
+  // multipliers the adjoint recursion's, so the dynamics and the state stationarity hold by
+  // construction (up to rounding): their residuals are not formed.
+  for (int k : a.const_rows) {
+    const int i = a.row_stage[k];
+    w.gz[k] = detail::g_row(w, k, w.u + a.uo[i], w.x + i * nx);
   }
+  for (int k = 0; k < w.rows; ++k) w.lam[k] = a.state[k] == 2 ? a.ub[k] : 0.0;
   for (int s = 0; s < p; ++s) w.lam[a.slot_row[s]] = a.lam[s];
+  double pres = 0.0, dres = 0.0, cscale = w.d_max;
   for (int k = 0; k < w.rows; ++k) {
-    if (w.soft[k] > 0.0) w.mu[k] = w.zs[k] - w.lam[k];
+    const double r = w.gz[k] - w.dv[k];
+    if (w.soft[k] > 0.0) {
+      if (w.act[k] > 0.0) w.sig[k] = std::max(r, 0.0);
+      w.mu[k] = w.zs[k] - w.lam[k];
+      w.sigt[k] = std::max(r, 0.0);
+    } else {
+      w.sigt[k] = w.sig[k];
+    }
     w.t[k] = std::max(w.dv[k] - w.gz[k] + w.sig[k], 0.0);
+    cscale = std::max(cscale, std::abs(w.gz[k]) * w.act[k]);
+    if (w.act[k] == 0.0) continue;
+    if (w.soft[k] == 0.0)
+      pres = std::max(pres, r);  // soft rows hold with s*
+    else
+      dres = std::max(dres, std::abs(w.Zs[k] * w.sig[k] + w.zs[k] - w.lam[k] - w.mu[k]));
   }
-  if (fixed)
-    detail::FixedStage::multipliers(a, w, qp);
-  else
-    detail::AnyStage::multipliers(a, w, qp);
+  const double gscale = fixed ? detail::FixedStage::multipliers(a, w, qp) : detail::AnyStage::multipliers(a, w, qp);
+  w.grad_scale = std::max({1.0, gscale, w.zs_max});
+  w.cons_scale = std::max(1.0, cscale);
+  info_.primal_residual = pres;
+  info_.dual_residual = std::max(dres, detail::max_abs(w.rdu, w.inputs));
+  outputs_formed_ = true;
   return Status::Solved;
 }
 

@@ -53,6 +53,7 @@ struct ActiveSet {
   Array<int> po, row_stage;
   Array<int> ent;  // per nonzero of the rows kept (w.col's positions): its column in P (c or nu_i + s)
   Array<double> P, inv_norm;
+  Array<double> scan0;  // per row its weight in the entering row's search at lam = 0: inv_norm, 0 when ub = 0
   // Per solve.
   // condensed gradient f, x_free, adjoint; uc = -H^-1 (f + the saturated soft rows' zs gbar): the
   // inputs at lam = 0 on W
@@ -115,7 +116,7 @@ struct ActiveSet {
   void keep_copies(const OcpQp& qp);  // the C, D and soft-row data part of it
   // H = Gamma'Qbar Gamma + Rbar and its Cholesky factor; false when H is not positive definite.
   bool condense(const OcpQp& qp);
-  // inv_norm of stage i's rows (as the workspace compresses them) from P_ii; needs condensed.
+  // inv_norm and scan0 of stage i's rows (as the workspace compresses them) from P_ii; needs condensed.
   void row_norms(const Workspace& w, int i);
   // m_r'm_k of two rows as the workspace compresses them, from P; needs condensed.
   double gram(const Workspace& w, int r, int k) const;

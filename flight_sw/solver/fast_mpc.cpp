@@ -100,6 +100,7 @@ bool FastMpcSolver::inputs_ok(const OcpQp& qp, const Vector& x0, detail::ActiveS
 Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
   t_start_ = clock_now();
   info_ = Info{};
+  outputs_formed_ = false;
   Status st = Status::InvalidInput;
   detail::ActiveSet* kept = uses_active_set() ? dense_.get() : nullptr;  // rows and data kept across solves
   if (!settings_.invalid() && inputs_ok(qp, x0, kept)) {
@@ -127,21 +128,20 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
            : settings_.mode == Mode::Converged ? solve_converged(qp, warm, settings_.max_iter, 0.0, settings_.warm_push)
                                                : solve_barrier(qp, warm);
     }
-    // The active-set method, when it answered alone (no interior-point iteration), formed every
-    // row's G z at its plan for the outputs.
-    const bool gz_current = st == Status::Solved && active_set_applies() && info_.iterations == 0;
-    K.residuals(w, qp, w.x, w.u, w.pi, w.lam, gz_current);
-    double pres = detail::max_abs(w.rdyn, w.N * w.nx), dres = 0.0;
-    for (int k = 0; k < w.rows; ++k) {
-      if (w.act[k] == 0.0) continue;
-      if (w.soft[k] == 0.0) pres = std::max(pres, w.gz[k] - w.dv[k]);  // soft rows hold with s*
-      if (w.soft[k] > 0.0) dres = std::max(dres, std::abs(w.Zs[k] * w.sig[k] + w.zs[k] - w.lam[k] - w.mu[k]));
+    if (!outputs_formed_) {  // (the active-set method, when it answered alone, formed them at its answer)
+      K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
+      double pres = detail::max_abs(w.rdyn, w.N * w.nx), dres = 0.0;
+      for (int k = 0; k < w.rows; ++k) {
+        if (w.act[k] == 0.0) continue;
+        if (w.soft[k] == 0.0) pres = std::max(pres, w.gz[k] - w.dv[k]);  // soft rows hold with s*
+        if (w.soft[k] > 0.0) dres = std::max(dres, std::abs(w.Zs[k] * w.sig[k] + w.zs[k] - w.lam[k] - w.mu[k]));
+      }
+      info_.primal_residual = pres;
+      info_.dual_residual = std::max({dres, detail::max_abs(w.rdu, w.inputs), detail::max_abs(w.rdx + w.nx, w.N * w.nx)});
+      // The objective of the returned plan: soft rows at their least violation s* = max(g'z - d, 0)
+      // (the iterate's slacks are at most tol above it), kept in sigt for publish().
+      for (int k = 0; k < w.rows; ++k) w.sigt[k] = w.soft[k] > 0.0 ? std::max(w.gz[k] - w.dv[k], 0.0) : w.sig[k];
     }
-    info_.primal_residual = pres;
-    info_.dual_residual = std::max({dres, detail::max_abs(w.rdu, w.inputs), detail::max_abs(w.rdx + w.nx, w.N * w.nx)});
-    // The objective of the returned plan: soft rows at their least violation s* = max(g'z - d, 0)
-    // (the iterate's slacks are at most tol above it), kept in sigt for publish().
-    for (int k = 0; k < w.rows; ++k) w.sigt[k] = w.soft[k] > 0.0 ? std::max(w.gz[k] - w.dv[k], 0.0) : w.sig[k];
     info_.objective = K.cost(w, qp, w.x, w.u) + detail::soft_cost(w, w.sigt) + w.const_soft;
     // A solve the clock stopped early leaves an iterate, not a plan: the next one starts cold.
     has_warm_ = st == Status::Solved || st == Status::MaxIter;

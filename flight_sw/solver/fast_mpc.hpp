@@ -105,6 +105,7 @@ class FastMpcSolver {
   Vector setup_x0_;  // zeros: setup()'s x0 for the input checks, so that it allocates nothing either
   TimePoint t_start_;  // on the flight clock (elapsed.hpp)
   bool has_warm_ = false;
+  bool outputs_formed_ = false;  // this solve's residuals and sigt are formed already (solve_active_set)
   bool shifted_ = false;  // the warm plan was shifted: its tail x_N needs the new QP's dynamics
   friend struct SolverAccess;
 };

@@ -63,7 +63,7 @@ Status FastMpcSolver::solve_barrier(const OcpQp& qp, bool warm) {
       w.lam[k] = kappa / w.t[k];
       w.mu[k] = w.soft[k] > 0.0 ? kappa / sig[k] : 0.0;
     }
-    K.residuals(w, qp, x, u, pi, w.lam, false);
+    K.residuals(w, qp, x, u, pi, w.lam);
     double r2 = 0.0;
     for (int k = 0; k < w.inputs; ++k) r2 += w.rdu[k] * w.rdu[k];
     for (int k = nx; k < X; ++k) r2 += w.rdx[k] * w.rdx[k];

@@ -98,7 +98,7 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
       for (int k = 0; k < N * nx; ++k) w.pi[k] = 0.0;
       K.rollout(w, qp, w.x, w.u);
     }
-    K.residuals(w, qp, w.x, w.u, w.pi, w.lam, false);  // for Gz and the cost gradient's scale
+    K.residuals(w, qp, w.x, w.u, w.pi, w.lam);  // for Gz and the cost gradient's scale
     const double gs0 = w.grad_scale;
     for (int k = 0; k < M; ++k) {
       if (w.act[k] == 0.0) {
@@ -155,7 +155,7 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
   Status st = Status::MaxIter;
   int k = 0;
   for (;; ++k) {
-    K.residuals(w, qp, w.x, w.u, w.pi, w.lam, false);
+    K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
     double pres = detail::max_abs(w.rdyn, N * nx), dres = 0.0, gap = 0.0;
     // One pass over the rows: residuals, gap, and (for the step below) the Newton weights and the
     // predictor's complementarity targets rc = t lam, rcs = s mu; every row as a hard one (no

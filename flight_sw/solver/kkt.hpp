@@ -25,9 +25,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // Stage kernels, chosen once per solver from the dimensions.
 struct Kernels {
   // rdx, rdu, rdyn and gz at (x, u, pi, lam); grad_scale and cons_scale from the cost gradient and rows.
-  // gz_current: w.gz holds G z at (x, u) already (not formed again).
   void (*residuals)(Workspace&, const OcpQp&, const double* x, const double* u, const double* pi,
-                    const double* lam, bool gz_current);
+                    const double* lam);
   // Factor the Newton system with row weights w.weff; false when the input block is not positive definite.
   bool (*factorize)(Workspace&, const OcpQp&, double reg);
   // Step (s.dx, s.du, s.dpi) for the gradient (w.gx, w.gu) and dynamics residual c.

@@ -342,7 +342,7 @@ struct Solver {
   // Stages without inputs (the terminal one) get their own instance when sizes are fixed.
   static constexpr int kNone = NU == Eigen::Dynamic ? Eigen::Dynamic : 0;
   static void residuals(Workspace& w, const OcpQp& qp, const double* x, const double* u, const double* pi,
-                        const double* lam, bool gz_current) {
+                        const double* lam) {
     double gscale = 0.0;
     for (int i = 0; i <= w.N; ++i) {
       if (w.nu[i] == 0)
@@ -350,7 +350,7 @@ struct Solver {
       else
         StageKernels<NX, NU>::residuals(w, qp, i, x, u, pi, lam, gscale);
     }
-    if (!gz_current) g_mul_all(w, u, x, w.gz);
+    g_mul_all(w, u, x, w.gz);
     double cscale = w.d_max;
     for (int k = 0; k < w.rows; ++k) cscale = std::max(cscale, std::abs(w.gz[k]) * w.act[k]);
     w.grad_scale = std::max({1.0, gscale, w.zs_max});
