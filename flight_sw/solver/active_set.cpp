@@ -632,12 +632,10 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   };
   // The primal point of the current multipliers: u = uc - U_W lam, the states.
   auto primal = [&]() {
-    std::copy(a.uc.begin(), a.uc.end(), w.u);
-    for (int s = 0; s < p; ++s) {
-      const double* U = Uw + static_cast<size_t>(s) * n;
-      const double ls = a.lam[s];
-      for (int k = 0; k < n; ++k) w.u[k] -= ls * U[k];
-    }
+    Eigen::Map<Vector> u(w.u, n);
+    u = Eigen::Map<const Vector>(a.uc.data(), n);
+    if (p > 0)  // (one matrix-vector product: it blocks the columns, where axpys load and store u p times)
+      u.noalias() -= Eigen::Map<const Matrix>(Uw, n, p) * Eigen::Map<const Vector>(a.lam.data(), p);
     if (fixed)
       detail::FixedStage::rollout(a, qp, w.x, w.u, w.tm);
     else
