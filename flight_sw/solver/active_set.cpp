@@ -644,8 +644,8 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   // The row farthest outside its half-space in v (violation / |m_k|; a box row's G z: one product)
   // of those violated by more than the tolerance, in one pass per kind of row: lam = 0 and g'z > d,
   // or a soft row at lam = zs with g'z < d; of equals the first in row order. Every active row's
-  // G z is left in w.gz. (By the distance, not the violation: rows of late stages combine many inputs, their
-  // violations are large, and taking them first makes the working set wander; README.)
+  // G z is left in w.gz. (By the distance, not the violation: rows of late stages combine many
+  // inputs, their violations are large, and taking them first makes the working set wander; README.)
   // Besides it, up to Settings::active_set_bulk more violated hard rows at lam = 0 (the next by
   // distance, kept in more_*) may join W in the same pass. Cold solves only: a warm start's working
   // set is mostly right already, and there a row taken in bulk that leaves again costs more (O(p^2)
