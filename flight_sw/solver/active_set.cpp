@@ -915,21 +915,13 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   for (int s = 0; s < p; ++s) w.lam[a.slot_row[s]] = a.lam[s];
   double pres = 0.0, dres = 0.0, cscale = w.d_max;
   for (int k = 0; k < w.rows; ++k) {
-    const double r = w.gz[k] - w.dv[k];
     if (w.soft[k] > 0.0) {
-      if (w.act[k] > 0.0) w.sig[k] = std::max(r, 0.0);
+      if (w.act[k] > 0.0) w.sig[k] = std::max(w.gz[k] - w.dv[k], 0.0);
       w.mu[k] = w.zs[k] - w.lam[k];
-      w.sigt[k] = std::max(r, 0.0);
-    } else {
-      w.sigt[k] = w.sig[k];
     }
     w.t[k] = std::max(w.dv[k] - w.gz[k] + w.sig[k], 0.0);
     cscale = std::max(cscale, std::abs(w.gz[k]) * w.act[k]);
-    if (w.act[k] == 0.0) continue;
-    if (w.soft[k] == 0.0)
-      pres = std::max(pres, r);  // soft rows hold with s*
-    else
-      dres = std::max(dres, std::abs(w.Zs[k] * w.sig[k] + w.zs[k] - w.lam[k] - w.mu[k]));
+    detail::plan_row(w, k, pres, dres);
   }
   const double gscale = fixed ? detail::FixedStage::multipliers(a, w, qp) : detail::AnyStage::multipliers(a, w, qp);
   w.grad_scale = std::max({1.0, gscale, w.zs_max});

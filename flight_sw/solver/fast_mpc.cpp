@@ -131,16 +131,9 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
     if (!outputs_formed_) {  // (the active-set method, when it answered alone, formed them at its answer)
       K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
       double pres = detail::max_abs(w.rdyn, w.N * w.nx), dres = 0.0;
-      for (int k = 0; k < w.rows; ++k) {
-        if (w.act[k] == 0.0) continue;
-        if (w.soft[k] == 0.0) pres = std::max(pres, w.gz[k] - w.dv[k]);  // soft rows hold with s*
-        if (w.soft[k] > 0.0) dres = std::max(dres, std::abs(w.Zs[k] * w.sig[k] + w.zs[k] - w.lam[k] - w.mu[k]));
-      }
+      for (int k = 0; k < w.rows; ++k) detail::plan_row(w, k, pres, dres);  // (sigt: the objective's, publish()'s)
       info_.primal_residual = pres;
       info_.dual_residual = std::max({dres, detail::max_abs(w.rdu, w.inputs), detail::max_abs(w.rdx + w.nx, w.N * w.nx)});
-      // The objective of the returned plan: soft rows at their least violation s* = max(g'z - d, 0)
-      // (the iterate's slacks are at most tol above it), kept in sigt for publish().
-      for (int k = 0; k < w.rows; ++k) w.sigt[k] = w.soft[k] > 0.0 ? std::max(w.gz[k] - w.dv[k], 0.0) : w.sig[k];
     }
     info_.objective = K.cost(w, qp, w.x, w.u) + detail::soft_cost(w, w.sigt) + w.const_soft;
     // A solve the clock stopped early leaves an iterate, not a plan: the next one starts cold.

@@ -140,6 +140,18 @@ inline double max_abs(const double* v, int n) {
   for (int k = 0; k < n; ++k) m = std::max(m, std::abs(v[k]));
   return m;
 }
+// Row k's share of the returned plan's residuals (hard rows: g'z - d into pres; soft rows, which hold
+// with s*: the stationarity of their slack into dres) and its slack for the objective: soft rows at
+// their least violation s* = max(g'z - d, 0) (an iterate's slacks are at most tol above it), in sigt.
+inline void plan_row(Workspace& w, int k, double& pres, double& dres) {
+  const double r = w.gz[k] - w.dv[k];
+  w.sigt[k] = w.soft[k] > 0.0 ? std::max(r, 0.0) : w.sig[k];
+  if (w.act[k] == 0.0) return;
+  if (w.soft[k] == 0.0)
+    pres = std::max(pres, r);
+  else
+    dres = std::max(dres, std::abs(w.Zs[k] * w.sig[k] + w.zs[k] - w.lam[k] - w.mu[k]));
+}
 // Soft penalty of the slacks sig (zs sig + Zs sig^2 / 2 over soft rows).
 inline double soft_cost(const Workspace& w, const double* sig) {
   double f = 0.0;
