@@ -161,6 +161,27 @@ def test_result_layout_and_reusable_solver():
     assert flight_sw.solve_ocp_qp(*docking.args(), **docking.kw()).u[5].shape == (0,)
 
 
+@pytest.mark.parametrize("mode", ["converged", "interior_point", "fixed_barrier"])
+def test_solve_time_splits_into_update_iterations_and_output(mode):
+    """Info's parts of the solve time add up to it, for every method (docking by the active set in
+    converged mode); an input rejected before any iteration is all update."""
+    qp = docking_qp(12, np.random.default_rng(4))
+    solver = flight_sw.OcpSolver(6, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode=mode, warm_start=False)
+    for _ in range(3):
+        res = solver.solve(*qp.args(), **qp.kw())
+        assert res.status == "solved"
+        assert (res.active_set_changes > 0) == (mode == "converged") and (res.iterations > 0) != (mode == "converged")
+        parts = (res.update_time_us, res.iterate_time_us, res.output_time_us)
+        assert min(parts) >= 0.0 and res.iterate_time_us > 0.0
+        assert sum(parts) == pytest.approx(res.solve_time_us, rel=1e-9, abs=1e-9)
+    x0 = qp.x0.copy()
+    x0[2] = np.nan
+    bad = solver.solve(*qp.args()[:-1], x0, **qp.kw())
+    assert bad.status == "invalid_input"
+    assert bad.iterate_time_us == 0.0 and bad.output_time_us == 0.0
+    assert bad.update_time_us == bad.solve_time_us > 0.0
+
+
 def stationarity_residual(qp: OcpQpData, res) -> float:
     """Inf-norm of the gradient of the Lagrangian at the returned iterate, written out here:
     R u + r + B'pi + D'lam (inputs), Q x + q + A'pi_i - pi_{i-1} + C'lam (states x_1..x_N)."""
@@ -271,6 +292,9 @@ def test_bench_runs_on_a_qp_set_file(tmp_path, capsys):
     rows = [line.split() for line in out.splitlines() if line.startswith("docking")]
     assert [r[2] for r in rows] == ["flight_sw", "proxsuite-sparse", "daqp"]
     assert all(r[8] == "0/2" for r in rows), out  # objectives agree with the reference
+    # flight_sw's time by part, set against DAQP's clock on the part that clock covers
+    parts = [line.split() for line in out.splitlines() if line.startswith("  docking") and "iterations" in line]
+    assert len(parts) == 1 and parts[0][2] == "flight_sw" and "daqp" in parts[0], out
 
 
 def test_bench_with_cold_caches_evicts_them_before_every_timed_solve(tmp_path, capsys, monkeypatch):

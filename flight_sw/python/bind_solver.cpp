@@ -25,6 +25,7 @@ struct SolveResult {
   int iterations = 0, back_solves = 0, active_set_changes = 0;
   bool rows_compressed = false;
   double objective = 0.0, primal_residual = 0.0, dual_residual = 0.0, solve_time_us = 0.0;
+  double update_time_us = 0.0, iterate_time_us = 0.0, output_time_us = 0.0;
 };
 
 Mode parse_mode(const std::string& mode) {
@@ -166,6 +167,9 @@ SolveResult collect(const FastMpcSolver& solver) {
   res.primal_residual = info.primal_residual;
   res.dual_residual = info.dual_residual;
   res.solve_time_us = info.solve_time_us;
+  res.update_time_us = info.update_time_us;
+  res.iterate_time_us = info.iterate_time_us;
+  res.output_time_us = info.output_time_us;
   const auto& x = solver.x();
   res.x = Matrix::Zero(dims.N + 1, dims.nx);
   res.pi = Matrix::Zero(dims.N, dims.nx);
@@ -262,6 +266,12 @@ void bind_solver(py::module_& m) {
                     "inf-norm of the dynamics residual and of the inequality violation")
       .def_readonly("dual_residual", &SolveResult::dual_residual, "inf-norm of the stationarity residual")
       .def_readonly("solve_time_us", &SolveResult::solve_time_us, "wall time of the C++ solve, microseconds")
+      .def_readonly("update_time_us", &SolveResult::update_time_us,
+                    "part of solve_time_us taking in the QP: input checks, its rows, x0's terms, the start point")
+      .def_readonly("iterate_time_us", &SolveResult::iterate_time_us,
+                    "part of solve_time_us in the method's iterations, to the answer's primal point")
+      .def_readonly("output_time_us", &SolveResult::output_time_us,
+                    "part of solve_time_us forming the outputs: multipliers, residuals, objective")
       .def("__repr__", [](const SolveResult& r) {
         std::ostringstream s;
         s << "OcpQpResult(status='" << r.status << "', iterations=" << r.iterations << ", objective=" << r.objective

@@ -717,6 +717,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   // multiplier would leave its bounds, one change each. Near the docking port most rows of the
   // last solution stay active, so this saves rebuilding the working set one violated row at a time.
   bool primal_current = false;  // w.u, w.x are the primal point of the current multipliers
+  mark_iterations();
   if (warm) {
     for (int k : a.active_rows)
       if (a.warm_state[k] == 2 && a.ub[k] > 0.0 && a.ub[k] < inf) {
@@ -898,6 +899,7 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
     return ipm;
   }
   if (st != Status::Solved) return st;
+  mark_output();
   std::copy(a.state.begin(), a.state.end(), a.warm_state.begin());
   a.warm_valid = true;
   // The outputs at the answer, which solve() then forms no more: per row the multiplier, soft slack

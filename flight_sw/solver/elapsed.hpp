@@ -94,10 +94,10 @@ class FlightClock {
 
   // Microseconds from t0 to now. A reading of another clock configuration (the plugin fell silent
   // in between) gives +infinity: whatever budget it was timing is spent, and the step degrades.
-  double elapsed_us(TimePoint t0) {
-    const TimePoint t = now();
-    if (t.epoch != t0.epoch) return std::numeric_limits<double>::infinity();
-    return to_us(t.ticks - t0.ticks);
+  double elapsed_us(TimePoint t0) { return between_us(t0, now()); }
+  double between_us(TimePoint t0, TimePoint t1) const {
+    if (t1.epoch != t0.epoch) return std::numeric_limits<double>::infinity();
+    return to_us(t1.ticks - t0.ticks);
   }
 
   double to_us(std::int64_t ticks) const {

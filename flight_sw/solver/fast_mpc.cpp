@@ -100,7 +100,7 @@ bool FastMpcSolver::inputs_ok(const OcpQp& qp, const Vector& x0, detail::ActiveS
 Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
   t_start_ = clock_now();
   info_ = Info{};
-  outputs_formed_ = false;
+  outputs_formed_ = iterations_marked_ = output_marked_ = false;
   Status st = Status::InvalidInput;
   detail::ActiveSet* kept = uses_active_set() ? dense_.get() : nullptr;  // rows and data kept across solves
   if (!settings_.invalid() && inputs_ok(qp, x0, kept)) {
@@ -127,6 +127,7 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
       st = active_set_applies()               ? solve_active_set(qp, warm)
            : settings_.mode == Mode::Converged ? solve_converged(qp, warm, settings_.max_iter, 0.0, settings_.warm_push)
                                                : solve_barrier(qp, warm);
+      mark_output();
     }
     if (!outputs_formed_) {  // (the active-set method, when it answered alone, formed them at its answer)
       K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
@@ -144,7 +145,13 @@ Status FastMpcSolver::solve(const OcpQp& qp, const Vector& x0) {
     has_warm_ = false;
   }
   info_.status = st;
-  info_.solve_time_us = elapsed_us(t_start_);
+  FlightClock& clock = flight_clock();
+  const TimePoint end = clock.now();
+  const TimePoint iterate = iterations_marked_ ? t_iterate_ : end, output = output_marked_ ? t_output_ : end;
+  info_.solve_time_us = clock.between_us(t_start_, end);
+  info_.update_time_us = clock.between_us(t_start_, iterate);
+  info_.iterate_time_us = clock.between_us(iterate, output);
+  info_.output_time_us = clock.between_us(output, end);
   return st;
 }
 

@@ -89,6 +89,15 @@ class FastMpcSolver {
   bool time_up() const;
   bool active_set_applies() const;           // Settings::active_set_max_inputs, soft rows linear only
   Status solve_active_set(const OcpQp& qp, bool warm);  // active_set.cpp
+  // Where solve()'s time splits (Info::update_time_us / iterate_time_us / output_time_us): a method
+  // marks the start of its iterations and of its outputs; the first mark of each counts (an
+  // active-set solve handed to the interior point keeps its own start).
+  void mark_iterations() {
+    if (!iterations_marked_) t_iterate_ = clock_now(), iterations_marked_ = true;
+  }
+  void mark_output() {
+    if (!output_marked_) t_output_ = clock_now(), output_marked_ = true;
+  }
 
  private:
   bool inputs_ok(const OcpQp& qp, const Vector& x0, detail::ActiveSet* kept = nullptr) const;
@@ -103,7 +112,8 @@ class FastMpcSolver {
   std::unique_ptr<detail::ActiveSet> dense_;  // the condensed QP, when the inputs are few enough
   std::vector<Vector> x_, u_, lam_, pi_, sig_;  // the solution, sized once
   Vector setup_x0_;  // zeros: setup()'s x0 for the input checks, so that it allocates nothing either
-  TimePoint t_start_;  // on the flight clock (elapsed.hpp)
+  TimePoint t_start_, t_iterate_, t_output_;  // on the flight clock (elapsed.hpp)
+  bool iterations_marked_ = false, output_marked_ = false;
   bool has_warm_ = false;
   bool outputs_formed_ = false;  // this solve's residuals and sigt are formed already (solve_active_set)
   bool shifted_ = false;  // the warm plan was shifted: its tail x_N needs the new QP's dynamics

@@ -116,6 +116,7 @@ Status FastMpcSolver::solve_barrier(const OcpQp& qp, bool warm) {
     // cold primal-dual start then beats one from the old plan).
     if (!inside) warm = false;
   }
+  mark_iterations();
   // Primal-dual iterations along the central path down to complementarity ~kappa: the cold
   // start, and the rescue when the warm plan hugs the boundary so closely that Newton crawls.
   // Returns true when Newton can take over; otherwise st0 is the solve's answer.

@@ -154,6 +154,7 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
   const int window = std::clamp(S.stall_window, 1, 7);
   Status st = Status::MaxIter;
   int k = 0;
+  mark_iterations();
   for (;; ++k) {
     K.residuals(w, qp, w.x, w.u, w.pi, w.lam);
     double pres = detail::max_abs(w.rdyn, N * nx), dres = 0.0, gap = 0.0;

@@ -86,7 +86,14 @@ struct Info {
   double dual_residual = 0.0;    // inf-norm of the stationarity residual
   double objective = 0.0;        // objective at the returned iterate (constant terms excluded),
                                  // soft penalties included
-  double solve_time_us = 0.0;    // wall time of solve(), microseconds
+  double solve_time_us = 0.0;    // wall time of solve(), microseconds, on the flight clock
+  // solve_time_us by part (their sum, up to rounding): the update takes in this QP (input checks,
+  // its rows, x0's terms, the start point); the iterations run the method to the answer's primal
+  // point; the output forms what is published (multipliers, residuals, objective). An answer
+  // without iterations (invalid input, a constant row violated) is all update.
+  double update_time_us = 0.0;
+  double iterate_time_us = 0.0;
+  double output_time_us = 0.0;
 };
 
 }  // namespace rvd::solver

@@ -98,6 +98,7 @@ def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
     r = forms[key].solve(*qp.args(), **qp.kw())
     forms["_iterations"] = r.iterations if r.iterations else r.active_set_changes  # the active set: its changes
     forms["_bytes"] = forms[key].workspace_bytes
+    forms["_parts"] = (r.update_time_us, r.iterate_time_us, r.output_time_us)
     return r.objective, r.status, r.solve_time_us, forms[key + ("setup",)]
 
 
@@ -394,6 +395,37 @@ def warm_cold(seed: int = 0, random_starts: int = 6) -> None:
           "loop and the cold loop may fly slightly different trajectories (same QPs only at the first step)\n")
 
 
+def print_parts(parts, times, groups, names) -> None:
+    """flight_sw's solve time by part, and against DAQP's clock on what that clock covers."""
+    forms = [n for n in names if any(k + (n,) in parts for k in groups)]
+    if not forms:
+        return
+    print("flight_sw's solve time by part (Info::update_time_us / iterate_time_us / output_time_us), medians in us: "
+          "the update takes in the QP (input checks, rows, x0's terms: the rollout, the gradient and the "
+          "unconstrained inputs, the start point), the iterations run the method to the answer's primal point, "
+          "the output forms the multipliers, residuals and objective")
+    daqp = "daqp" in names
+    if daqp:
+        print("  DAQP's clock covers its iterations and the primal answer only: the update of its LDP form for the QP "
+              "(v = R^-T f, the rows' bounds shifted by M v; in its setup or update call) and the copy-out of the "
+              "result are outside it, and the condensed QP's f and bounds for x0 are formed before. "
+              "'daqp / iterations' compares the two clocks on that common part (above 1: flight_sw's is shorter)")
+    for key in groups:
+        for name in forms:
+            p = np.array(parts.get(key + (name,), []))
+            if not len(p):
+                continue
+            med = np.median(p, axis=0)
+            txt = (f"  {key[0]:<11}{key[1]:>4}  {name:<14} update {med[0]:7.1f}  iterations {med[1]:8.1f} "
+                   f"(p90 {pct(p[:, 1], 90):8.1f})  output {med[2]:6.1f}")
+            if daqp and name == "flight_sw" and times.get(key + ("daqp",)):
+                t = times[key + ("daqp",)]
+                txt += (f"   daqp / iterations: median {np.median(t) / med[1]:.2f}, "
+                        f"p90 {pct(t, 90) / pct(p[:, 1], 90):.2f}")
+            print(txt)
+    print()
+
+
 def pct(values, q):
     return float(np.percentile(values, q)) if len(values) else math.nan
 
@@ -447,6 +479,7 @@ def main(argv=None) -> int:
 
     times = defaultdict(list)      # (phase, N, solver) -> solve times
     setups = defaultdict(list)     # (phase, N, solver) -> setup times the solver reports
+    parts = defaultdict(list)      # (phase, N, flight_sw form) -> its solve time by part
     wrong = defaultdict(int)       # (phase, N, solver) -> objective disagreements / failures
     worst = defaultdict(float)     # (phase, N, solver) -> worst relative objective difference
     iters = defaultdict(list)      # (phase, N, solver) -> iterations (solvers that report them)
@@ -470,9 +503,12 @@ def main(argv=None) -> int:
             for rep in range(args.repeats):
                 forms.pop("_iterations", None)
                 forms.pop("_bytes", None)
+                forms.pop("_parts", None)
                 obj, status, t_us, setup_us = SOLVERS[name](qp, forms)
                 if "_bytes" in forms:
                     arena[key + (name,)] = forms["_bytes"]
+                if "_parts" in forms:
+                    parts[key + (name,)].append(forms["_parts"])
                 times[key + (name,)].append(t_us)
                 setups[key + (name,)].append(setup_us)
                 if rep == 0:
@@ -504,6 +540,8 @@ def main(argv=None) -> int:
           "(median), where it reports one (flight_sw allocates its workspace once per phase, before any solve); "
           "iterations: per solve, where the solver reports them (HPIPM; flight_sw: interior-point iterations, "
           "active-set changes where it runs the active-set method)\n")
+
+    print_parts(parts, times, groups, names)
 
     if arena:
         print("flight_sw working memory (its one arena, allocated by the constructor once per phase; the "
