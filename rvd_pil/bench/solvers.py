@@ -21,13 +21,17 @@ Clocks (each solver's own, setup excluded; microseconds):
                      workspace is allocated once before, as in flight; cold start (no warm start).
                      The settings the guidance flies: docking and approach by the dual active-set
                      method (A, B, Q, R condensed by setup(), once per phase in flight: its time is
-                     the setup column), rendezvous by the interior point
+                     the setup column), rendezvous by the interior point. After the table, its time by
+                     part (Info's update / iterations / output) and, with daqp in the run, DAQP's
+                     clock against flight_sw's iterations: the part both clocks cover
   flight_sw-ipm      the same, every phase by the interior point
   proxsuite sparse/  results.info.solve_time (compute_timings=True): solve after init()
   proxsuite dense
   osqp               info.solve_time + info.polish_time (setup_time excluded)
   daqp               info['solve_time'] (setup_time excluded); on the condensed QP (states
-                     eliminated; condensing is not timed)
+                     eliminated; condensing is not timed). A new model per solve, set up untimed: the
+                     setup also turns the QP's f and bounds into DAQP's LDP form, so that per-QP
+                     update is outside the clock, and so is copying the result out
   piqp               result.info.solve_time (setup_time excluded), sparse interface
   clarabel           solution.solve_time (the DefaultSolver constructor does the setup)
   hpipm              wall time of the one d_ocp_qp_ipm_solve call minus the measured ctypes call
