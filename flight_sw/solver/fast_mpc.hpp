@@ -5,7 +5,7 @@
 // recursion over the stages, soft rows eliminated into it as diagonal terms, fixed-size kernels
 // for nx = 6, nu = 3):
 //  - Mode::Converged (ipm.cpp): primal-dual interior point, Mehrotra predictor-corrector with a
-//    Gondzio corrector when the step is short and iterative refinement in the late iterations, to
+//    Gondzio correctors when the step is short and iterative refinement in the late iterations, to
 //    Settings::tol on the relative primal and dual residuals and duality gap.
 //  - Mode::FixedBarrier (fixed_barrier.cpp): Wang and Boyd's infeasible-start Newton method on the
 //    log-barrier problem with a fixed weight kappa; its iterates satisfy the rows strictly and its

@@ -287,12 +287,13 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     }
     // Gondzio's centrality corrector when the step is short: Mehrotra's direction alone can cycle
     // (e.g. an input bouncing between the two sides of its box). It pushes the complementarity
-    // products at a longer trial step back into [0.1, 10] * sigma mu.
+    // products at a longer trial step back into [1/band, band] * sigma mu.
+    const double band = S.corrector_band, lo = smu / band, hi = smu * band;
     for (int c = 0; c < S.max_correctors && amax < S.correct_below; ++c) {
       const double atrial = std::min(1.0, 1.5 * amax + 0.1);
       std::swap(w.step, w.spare);  // the current step to the spare, rc/rcs keep their targets
       const Step& s0 = w.spare;
-      auto push = [&](double prod) { return std::max(std::min(std::max(prod, 0.1 * smu), 10.0 * smu) - prod, -10.0 * smu); };
+      auto push = [&](double prod) { return std::max(std::min(std::max(prod, lo), hi) - prod, -hi); };
       for (int r = 0; r < M; ++r)
         if (w.act[r] != 0.0) w.rc[r] -= push((w.t[r] + atrial * s0.dt[r]) * (w.lam[r] + atrial * s0.dlam[r]));
       for (int j = 0; j < w.n_soft; ++j) {
@@ -309,7 +310,12 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     }
     // Near the solution the fraction to the boundary only slows the last iterations down (each
     // would shrink the gap by 1 - step_to_boundary at best): go closer once the gap is small.
-    const double tau = gap <= S.late_from_gap * std::max(1.0, std::abs(obj)) ? S.step_to_boundary_late : S.step_to_boundary;
+    // A warm start's first step stops further from the boundary: a shifted plan's products are far
+    // from centred, and a first step taken 0.995 of the way leaves a pair at the boundary that blocks
+    // the next predictors.
+    const double tau = gap <= S.late_from_gap * std::max(1.0, std::abs(obj)) ? S.step_to_boundary_late
+                       : warm && k == 0                                     ? S.warm_step_to_boundary
+                                                                            : S.step_to_boundary;
     double alpha = std::min(1.0, tau * amax);
     const Step& s = w.step;
     // On a primal-dual feasible iterate the gap after a step is quadratic in alpha with curvature

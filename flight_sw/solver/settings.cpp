@@ -35,8 +35,10 @@ const char* Settings::invalid() const {
   if (mode == Mode::FixedBarrier && !(barrier > 0.0)) return "barrier (kappa) must be > 0";
   if (!(time_limit_us >= 0.0)) return "time_limit_us must be >= 0";
   if (!(reg_min > 0.0 && reg_max >= reg_min)) return "need 0 < reg_min <= reg_max";
-  if (!(step_to_boundary > 0.0 && step_to_boundary < 1.0 && step_to_boundary_late > 0.0 && step_to_boundary_late < 1.0))
-    return "step_to_boundary and step_to_boundary_late must be in (0, 1)";
+  if (!(step_to_boundary > 0.0 && step_to_boundary < 1.0 && step_to_boundary_late > 0.0 && step_to_boundary_late < 1.0 &&
+        warm_step_to_boundary > 0.0 && warm_step_to_boundary < 1.0))
+    return "step_to_boundary, step_to_boundary_late and warm_step_to_boundary must be in (0, 1)";
+  if (!(corrector_band >= 1.0)) return "corrector_band must be >= 1";
   if (!(late_from_gap >= 0.0)) return "late_from_gap must be >= 0";
   if (max_correctors < 0 || max_refinements < 0 || stall_window < 1) return "counts must be >= 0 (stall_window >= 1)";
   if (!(certificate_reach > 0.0)) return "certificate_reach must be > 0";

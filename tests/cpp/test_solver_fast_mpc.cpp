@@ -319,6 +319,13 @@ TEST_CASE("bad input gives InvalidInput and never crashes") {
   solver.settings().tol = -1.0;
   CHECK(solver.solve(good, x0) == Status::InvalidInput);
   solver.settings().tol = 1e-8;
+  solver.settings().warm_step_to_boundary = 1.0;  // a step onto the boundary
+  CHECK(solver.solve(good, x0) == Status::InvalidInput);
+  solver.settings().warm_step_to_boundary = 0.97;
+  solver.settings().corrector_band = 0.5;  // an empty band
+  CHECK(solver.solve(good, x0) == Status::InvalidInput);
+  solver.settings().corrector_band = 5.0;
+  CHECK(solver.solve(good, x0) == Status::Solved);
 
   OcpQpDims bad_dims = good.dims;
   bad_dims.nu.pop_back();
