@@ -16,7 +16,7 @@
 // a violated hard one means Infeasible at once.
 //
 // Worst case: solve() factors at most Settings::max_iter Newton systems, each followed by at most
-// 2 + max_correctors + 2 * max_refinements back-solves (Info::iterations, Info::back_solves); the
+// 1 + (2 + max_correctors) (1 + max_refinements) back-solves (Info::iterations, Info::back_solves); the
 // work per factorisation and per back-solve is fixed by the dimensions (no data-dependent loops
 // besides the fixed-barrier line search, <= ls_max_halvings trial points per iteration).
 //
