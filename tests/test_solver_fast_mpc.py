@@ -255,6 +255,33 @@ def test_shape_errors_raise_value_error():
         solver.solve(*other.args())
 
 
+def test_back_solves_per_factorisation_stay_within_the_documented_bound():
+    """The deadline monitor's bound (fast_mpc.hpp): at most 1 + (2 + max_correctors)(1 +
+    max_refinements) back-solves per factorisation, 16 with the defaults (3 correctors, 2
+    refinements), on the rendezvous QPs of two closed loops (Case 1 and Case 3, the rotating target),
+    each solved cold and then warm from its own answer shifted one stage."""
+    from support.qp_forms import from_dict
+    bound = 1 + (2 + 3) * (1 + 2)
+    params = flight_sw.GuidanceParams()
+    params.rendezvous.N, params.approach.N, params.docking.N = 30, 15, 12
+    qps = []
+    for case in (1, 3):
+        c = flight_sw.dissertation_case(case)
+        run = flight_sw.run_closed_loop(params, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"], record_qps=True)
+        qps += [from_dict(rec["qp"], "rendezvous") for rec in run.qps if int(rec["phase"]) == 1]
+    assert len(qps) >= 20
+    worst = 0.0
+    for qp in qps:
+        solver = flight_sw.OcpSolver(6, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode="interior_point")
+        for _ in range(2):
+            res = solver.solve(*qp.args(), **qp.kw())
+            assert res.status in ("solved", "infeasible") and res.iterations > 0  # (the loops record infeasible ones too)
+            assert res.back_solves <= bound * res.iterations
+            worst = max(worst, res.back_solves / res.iterations)
+            solver.shift_warm_start()
+    assert worst > 2.0  # correctors or refinements ran somewhere: the bound was exercised
+
+
 def test_time_limit_reports_time_limit():
     qp = random_mpc_qp(45, np.random.default_rng(3))
     res = flight_sw.solve_ocp_qp(*qp.args(), **qp.kw(), time_limit_us=1e-3)  # 1 ns: spent before the first check
