@@ -108,11 +108,14 @@ struct Stage {
       }
     }
   }
-  // out = Q_i x_i + q_i (+ A_i' next when next).
-  static void adjoint_x(const OcpQp& qp, int i, int nx, const double* x, const double* next, double* out) {
+  // out = Q_i x_i + q_i (+ A_i' next when next); with gscale, the cost gradient Q_i x_i + q_i's
+  // largest entry is folded into it.
+  static void adjoint_x(const OcpQp& qp, int i, int nx, const double* x, const double* next, double* out,
+                        double* gscale = nullptr) {
     XMap o(out, nx);
     o = CMap<NX, 1>(qp.q[i].data(), nx);
     o.noalias() += CMap<NX, NX>(qp.Q[i].data(), nx, nx).lazyProduct(CMap<NX, 1>(x, nx));
+    if (gscale) *gscale = std::max(*gscale, o.cwiseAbs().maxCoeff());
     if (next) o.noalias() += CMap<NX, NX>(qp.A[i].data(), nx, nx).transpose().lazyProduct(CMap<NX, 1>(next, nx));
   }
   // out = r_i + B_i' next (i < N), r_i on stage N.
@@ -151,13 +154,7 @@ struct Stage {
         if (next) g.noalias() += CMap<NX, NU>(qp.B[i].data(), nx, m).transpose().lazyProduct(CMap<NX, 1>(next, nx));
       }
       double* pi_prev = i > 0 ? w.pi + (i - 1) * nx : nullptr;
-      if (pi_prev) {
-        XMap o(pi_prev, nx);
-        o = CMap<NX, 1>(qp.q[i].data(), nx);
-        o.noalias() += CMap<NX, NX>(qp.Q[i].data(), nx, nx).lazyProduct(CMap<NX, 1>(w.x + i * nx, nx));
-        gscale = std::max(gscale, o.cwiseAbs().maxCoeff());
-        if (next) o.noalias() += CMap<NX, NX>(qp.A[i].data(), nx, nx).transpose().lazyProduct(CMap<NX, 1>(next, nx));
-      }
+      if (pi_prev) adjoint_x(qp, i, nx, w.x + i * nx, next, pi_prev, &gscale);
       detail::gt_mul_add(w, i, w.lam, w.rdu + a.uo[i], pi_prev);
     }
     return gscale;
@@ -333,7 +330,7 @@ void ActiveSet::row_norms(const Workspace& w, int i) {
   for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
     const double sq = gram(w, k, k);
     inv_norm[k] = sq > 0.0 ? 1.0 / std::sqrt(sq) : std::numeric_limits<double>::infinity();  // no input moves it: first
-    scan0[k] = ub[k] == 0.0 ? 0.0 : inv_norm[k];
+    scan0[k] = scan_weight(k, 0);
   }
 }
 
@@ -575,12 +572,11 @@ Status FastMpcSolver::solve_active_set(const OcpQp& qp, bool warm) {
   Eigen::Map<Vector> uc(a.uc.data(), n);  // uc = -H^-1 f (a product into zeros: no temporary)
   uc.setZero();
   uc.noalias() -= Eigen::Map<const Matrix>(Hinv, n, n) * Eigen::Map<const Vector>(a.f.data(), n);
-  // Per row: the weight of g'z - d in the search for the entering row (w.inv_s as scratch: 1 / |m_k|
-  // at lam = 0, - that at lam = ub, 0 in W or never).
+  // Per row its weight in the entering row's search (ActiveSet::scan_weight; w.inv_s as scratch).
   double* scan = w.inv_s;
   auto set_state = [&](int k, signed char st) {  // (active rows only)
     a.state[k] = st;
-    scan[k] = a.ub[k] == 0.0 || st == 1 ? 0.0 : st == 0 ? a.inv_norm[k] : -a.inv_norm[k];
+    scan[k] = a.scan_weight(k, st);
   };
   std::fill(a.state.begin(), a.state.end(), 0);  // constant rows stay at 0 and are never scanned
   std::copy(a.scan0.begin(), a.scan0.end(), scan);  // set_state(k, 0) of every row

@@ -120,6 +120,11 @@ struct ActiveSet {
   void row_norms(const Workspace& w, int i);
   // m_r'm_k of two rows as the workspace compresses them, from P; needs condensed.
   double gram(const Workspace& w, int r, int k) const;
+  // Row k's weight of g'z - d in the entering row's search in state st (0: at lam = 0, 1: in W,
+  // 2: at lam = ub): 1 / |m_k|, its negative at the upper bound, 0 in W or when ub = 0 (never enters).
+  double scan_weight(int k, signed char st) const {
+    return ub[k] == 0.0 || st == 1 ? 0.0 : st == 0 ? inv_norm[k] : -inv_norm[k];
+  }
   // The warm state one stage on (FastMpcSolver::shift_warm_start): stage i takes stage i + 1's
   // rows that shift (kkt.hpp, shifted_rows), its other rows leave W; stage N keeps its own.
   void shift_warm_state(const Workspace& w);
