@@ -401,8 +401,8 @@ def warm_cold(seed: int = 0, random_starts: int = 6) -> None:
 
 def print_parts(parts, times, groups, names) -> None:
     """flight_sw's solve time by part, and against DAQP's clock on what that clock covers."""
-    forms = [n for n in names if any(k + (n,) in parts for k in groups)]
-    if not forms:
+    ours = [n for n in names if any(k + (n,) in parts for k in groups)]  # the flight_sw forms in the run
+    if not ours:
         return
     print("flight_sw's solve time by part (Info::update_time_us / iterate_time_us / output_time_us), medians in us: "
           "the update takes in the QP (input checks, rows, x0's terms: the rollout, the gradient and the "
@@ -415,7 +415,7 @@ def print_parts(parts, times, groups, names) -> None:
               "result are outside it, and the condensed QP's f and bounds for x0 are formed before. "
               "'daqp / iterations' compares the two clocks on that common part (above 1: flight_sw's is shorter)")
     for key in groups:
-        for name in forms:
+        for name in ours:
             p = np.array(parts.get(key + (name,), []))
             if not len(p):
                 continue
