@@ -375,3 +375,22 @@ def test_soft_rows_equal_the_qp_with_explicit_slack_inputs(phase, N):
         if len(rows):
             viol = np.maximum(qp.C[i][rows] @ soft.x[i] + qp.D[i][rows] @ soft.u[i] - qp.d[i][rows], 0.0)
             np.testing.assert_allclose(soft.s[i], viol, atol=1e-12)
+
+
+def test_bench_tails_flies_each_phase_and_agrees_with_daqp(capsys):
+    """--tails on one horizon set and one seed: a block per phase with the flown, cold and DAQP rows,
+    every QP solved by flight_sw and DAQP to the same objective (bad 0), the flown maximum located, and
+    the repeated loop checked to fly the same commands (it raises otherwise). No speed is asserted."""
+    from rvd_pil.bench import solvers
+    solvers.closed_loop_tails(seeds=1, repeats=2, horizon_sets=((15, 5, 5),))
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line.split()[:1] in (["rendezvous"], ["approach"], ["docking"])]
+    assert [(r[0], r[1]) for r in rows[::4]] == [("rendezvous", "15"), ("approach", "5"), ("docking", "5")], out
+    for block in (rows[i:i + 4] for i in range(0, len(rows), 4)):
+        assert [" ".join(r[3:-5]) for r in block] == ["flown", "flight_sw cold", "daqp cold", "daqp warm"], out
+        assert len({r[2] for r in block}) == 1 and int(block[0][2]) > 10  # the same steps for every solver
+        assert all(r[-1] == "0" for r in block[1:]), out  # flight_sw and DAQP agree on every QP
+        for r in block:
+            median, p99, peak = (float(v) for v in r[-5:-2])
+            assert 0.0 < median <= p99 <= peak
+    assert out.count("flown maximum: Case") == 3

@@ -22,30 +22,40 @@ from rvd_pil import flight_sw as fsw
 HORIZON_SETS = ((15, 5, 5), (30, 15, 12), (45, 30, 30))
 
 
-def phase_work(case: int, horizons: tuple[int, int, int], seed: int, noise_scale: float, thrust_error: float,
-               phase: str, max_steps: int = 600) -> list[tuple[int, int, str]]:
-    """(step, work, guidance status) of every step of `phase` in one loop: interior-point iterations in
-    the rendezvous, active-set row changes in docking."""
-    want = fsw.Phase.Rendezvous if phase == "rendezvous" else fsw.Phase.Docking
+def noisy_loop(case: int, horizons: tuple[int, int, int], seed: int, noise_scale: float, thrust_error: float,
+               max_steps: int = 600):
+    """One seeded loop, step by step: yields (step, guidance, command) until docked or max_steps. The
+    same arguments fly the same loop (the noise is seeded; the guidance is deterministic)."""
     rng = np.random.default_rng(seed)
     p = fsw.GuidanceParams()
     p.rendezvous.N, p.approach.N, p.docking.N = horizons
     g = fsw.Guidance(p)
     c = fsw.dissertation_case(case)
     x, t, n = np.array(c["x0"], float), 0.0, p.mean_motion_rad_s()
-    out = []
     for k in range(max_steps):
         rho = np.linalg.norm(x[:3])
         seen = x + np.r_[rng.normal(0.0, noise_scale * (0.2 + 0.002 * rho), 3), rng.normal(0.0, noise_scale * 0.002, 3)]
         cmd = g.step(fsw.NavInput(k, t, seen, c["q_lvlh_body"], c["omega_body_rad_s"]))
-        if cmd.status == fsw.StepStatus.Docked or (want == fsw.Phase.Rendezvous and cmd.phase != want):
+        if cmd.status == fsw.StepStatus.Docked:
+            return
+        yield k, g, cmd
+        dv = np.asarray(cmd.dv_cmd_mps) * (1.0 + rng.normal(0.0, thrust_error, 3))
+        x = fsw.cw_stm(n, cmd.period_s) @ (x + np.r_[0.0, 0.0, 0.0, dv])
+        t += cmd.period_s
+
+
+def phase_work(case: int, horizons: tuple[int, int, int], seed: int, noise_scale: float, thrust_error: float,
+               phase: str, max_steps: int = 600) -> list[tuple[int, int, str]]:
+    """(step, work, guidance status) of every step of `phase` in one loop: interior-point iterations in
+    the rendezvous, active-set row changes in docking."""
+    want = fsw.Phase.Rendezvous if phase == "rendezvous" else fsw.Phase.Docking
+    out = []
+    for k, _, cmd in noisy_loop(case, horizons, seed, noise_scale, thrust_error, max_steps):
+        if want == fsw.Phase.Rendezvous and cmd.phase != want:
             break
         if cmd.phase == want:
             work = cmd.iterations if want == fsw.Phase.Rendezvous else cmd.active_set_changes
             out.append((k, work, str(cmd.status).split(".")[-1]))
-        dv = np.asarray(cmd.dv_cmd_mps) * (1.0 + rng.normal(0.0, thrust_error, 3))
-        x = fsw.cw_stm(n, cmd.period_s) @ (x + np.r_[0.0, 0.0, 0.0, dv])
-        t += cmd.period_s
     return out
 
 

@@ -9,6 +9,8 @@ the same MPC QPs, measured in one run. Prints figures; asserts nothing about spe
         # Cases 1-3 and seeded random starts (rotating targets among them) at the three horizon sets,
         # sampled per phase and horizon, written to cl.npz, then benched
     python -m rvd_pil.bench.solvers --warm-cold                # closed loops solved warm and cold side by side
+    python -m rvd_pil.bench.solvers --tails --repeats 3        # noisy closed loops: each phase's worst solve
+        # against its median, as flown and cold, with DAQP (cold and warm) on the same QPs
     python -m rvd_pil.bench.solvers --qp-set run.npz --cold-cache   # every timed solve starts with its
         # code and data out of the caches, as a guidance that solves once per control period meets them
 
@@ -399,6 +401,103 @@ def warm_cold(seed: int = 0, random_starts: int = 6) -> None:
           "loop and the cold loop may fly slightly different trajectories (same QPs only at the first step)\n")
 
 
+def closed_loop_tails(seeds: int = 2, noise_scale: float = 0.02, thrust_error: float = 0.03, repeats: int = 3,
+                      horizon_sets=None) -> None:
+    """The closed loop's worst solve against its median, per phase and horizon, with the same QPs solved
+    by DAQP side by side. Noisy in-process loops (bench.noisy_loops: CW plant, sensor noise, thrust
+    error) of Cases 1-3, `seeds` seeds each. Each loop is flown `repeats` times (the same QPs: the noise
+    is seeded and the guidance deterministic) and each step keeps its least time: flight_sw as flown
+    (warm, Command.solve_time_us). After each step the step's QP is solved `repeats` times by flight_sw
+    cold, DAQP cold (a new model per solve) and DAQP warm (one model per loop phase, updated with each
+    QP: it starts from its last working set, unshifted), least time kept. Steps whose QP was infeasible
+    (the recovery QP flew) are left out and counted. horizon_sets: default bench.noisy_loops'."""
+    from rvd_pil.bench.noisy_loops import HORIZON_SETS, noisy_loop
+    from rvd_pil import flight_sw
+    import daqp
+    names = ("rendezvous", "approach", "docking")
+    solvers = ("flown", "flight_sw cold", "daqp cold", "daqp warm")
+    times = defaultdict(lambda: defaultdict(list))  # (phase, N) -> solver -> least time per step
+    bad = defaultdict(lambda: defaultdict(int))     # (phase, N) -> solver -> not solved / objective off
+    worst_at = {}                                   # (phase, N) -> the flown maximum's case, seed, step
+    skipped = defaultdict(int)
+    t0 = time.time()
+    for horizons in horizon_sets or HORIZON_SETS:
+        for case in (1, 2, 3):
+            for seed in range(seeds):
+                flown, qps, commands = {}, {}, {}
+                for rep in range(repeats):
+                    for k, g, cmd in noisy_loop(case, horizons, seed, noise_scale, thrust_error):
+                        dv = tuple(cmd.dv_cmd_mps)
+                        if commands.setdefault(k, dv) != dv:  # the repeat must fly the loop it times again
+                            raise RuntimeError(f"Case {case} seed {seed}: repeat {rep} commanded {dv} at step {k}, "
+                                               f"not {commands[k]}: the loop is not deterministic")
+                        ph = int(cmd.phase)
+                        if ph not in (1, 2, 3) or not cmd.solved:
+                            continue
+                        if cmd.status == flight_sw.StepStatus.Recovered or cmd.solver_status != "solved":
+                            skipped[(names[ph - 1], horizons[ph - 1])] += rep == 0
+                            continue
+                        flown[k] = min(flown.get(k, math.inf), cmd.solve_time_us)
+                        if rep == 0:
+                            qps[k] = (ph, from_dict(g.last_qp(cmd.phase), names[ph - 1]))
+                models = {}
+                for k in sorted(qps):
+                    ph, qp = qps[k]
+                    key = (names[ph - 1], horizons[ph - 1])
+                    forms = {"condensed": condense(qp)}
+                    obj_fsw, obj_daqp = math.nan, math.nan
+                    least = defaultdict(lambda: math.inf)
+                    for _ in range(repeats):
+                        obj_fsw, status, t_us, _ = run_flight_sw(qp, forms)
+                        least["flight_sw cold"] = min(least["flight_sw cold"], t_us)
+                        bad[key]["flight_sw cold"] += status != "solved" and _ == 0
+                        obj_daqp, status, t_us, _ = run_daqp(qp, forms)
+                        least["daqp cold"] = min(least["daqp cold"], t_us)
+                        bad[key]["daqp cold"] += status != "solved" and _ == 0
+                    # DAQP warm: the loop's model, updated with this QP (its last working set kept).
+                    c = forms["condensed"]
+                    m = len(c.h)
+                    for rep in range(repeats):
+                        if (ph, rep) not in models:
+                            model = models[(ph, rep)] = daqp.Model()
+                            model.settings = {**model.settings, "eps_prox": -1.0, "primal_tol": 1e-6, "dual_tol": 1e-6,
+                                              "iter_limit": 100000}
+                            model.setup(c.H, c.g, c.G, c.h, np.full(m, -1e30), np.zeros(m, dtype=np.int32))
+                        else:
+                            models[(ph, rep)].update(H=c.H, f=c.g, A=c.G, bupper=c.h, blower=np.full(m, -1e30))
+                        U, _, exitflag, info = models[(ph, rep)].solve()
+                        least["daqp warm"] = min(least["daqp warm"], info["solve_time"] * 1e6)
+                        if rep == 0:
+                            x, u = c.unstack(np.asarray(U), qp)
+                            obj_warm = qp.objective(x, u) if exitflag == 1 else math.nan
+                            bad[key]["daqp warm"] += not abs(obj_warm - obj_fsw) <= AGREE_REL * max(1.0, abs(obj_fsw))
+                    # flight_sw and DAQP solve the same QP to the same optimum; a disagreement is counted on both
+                    agree = abs(obj_daqp - obj_fsw) <= AGREE_REL * max(1.0, abs(obj_fsw))
+                    bad[key]["flight_sw cold"] += not agree
+                    bad[key]["daqp cold"] += not agree
+                    least["flown"] = flown[k]
+                    for name in solvers:
+                        times[key][name].append(least[name])
+                    if flown[k] >= max(times[key]["flown"]):
+                        worst_at[key] = (case, seed, k)
+        print(f"  ... horizons {horizons} done, {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
+    print(f"closed-loop tails: Cases 1-3 x {seeds} seeds, noise scale {noise_scale}, thrust error {thrust_error:.0%} "
+          f"(CW plant, in process); least of {repeats} per step; times in us (each solver's own clock)")
+    print(f"{'phase':<11}{'N':>4}{'solves':>7}  {'solver':<15}{'median':>9}{'p99':>9}{'max':>9}{'max/median':>11}"
+          f"{'bad':>5}")
+    for key in sorted(times, key=lambda k: (names.index(k[0]), k[1])):
+        for name in solvers:
+            t = np.array(times[key][name])
+            print(f"{key[0]:<11}{key[1]:>4}{len(t):>7}  {name:<15}{np.median(t):>9.1f}{pct(t, 99):>9.1f}{t.max():>9.1f}"
+                  f"{t.max() / np.median(t):>11.2f}{bad[key][name] if name != 'flown' else '-':>5}")
+        case, seed, k = worst_at[key]
+        note = f" (and {skipped[key]} infeasible steps left out)" if skipped[key] else ""
+        print(f"{'':<15}flown maximum: Case {case} seed {seed} step {k}{note}\n")
+    print("flown = the guidance's own solve, warm-started (interior point in the rendezvous, dual active set in "
+          "approach and docking); flight_sw cold = the same QP solved from scratch; bad = not solved, or "
+          f"flight_sw's and DAQP's objectives more than {AGREE_REL:g} apart (relative)\n")
+
+
 def print_parts(parts, times, groups, names) -> None:
     """flight_sw's solve time by part, and against DAQP's clock on what that clock covers."""
     ours = [n for n in names if any(k + (n,) in parts for k in groups)]  # the flight_sw forms in the run
@@ -448,6 +547,10 @@ def main(argv=None) -> int:
                          "--per-group QPs per phase and horizon) into FILE, then bench it")
     ap.add_argument("--random-starts", type=int, default=12, help="random starts in --closed-loop-set")
     ap.add_argument("--warm-cold", action="store_true", help="closed loops warm vs cold, then exit")
+    ap.add_argument("--tails", action="store_true",
+                    help="noisy closed loops: each phase's worst solve against its median, flown and cold, with "
+                         "DAQP cold and warm on the same QPs; then exit (--seeds-per-case, --repeats)")
+    ap.add_argument("--seeds-per-case", type=int, default=2, help="seeds per case in --tails")
     ap.add_argument("--cold-cache", action="store_true",
                     help="evict the caches before every timed solve (twice the caches' size written over), "
                          "as a solve once per control period meets them; default: the repeats of a QP run back "
@@ -456,6 +559,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.warm_cold:
         warm_cold(args.seed)
+        return 0
+    if args.tails:
+        if args.seeds_per_case < 1 or args.repeats < 1:
+            ap.error("--seeds-per-case and --repeats must be >= 1")
+        closed_loop_tails(args.seeds_per_case, repeats=args.repeats)
         return 0
     if args.quick:
         args.per_group, args.repeats = 2, 2
