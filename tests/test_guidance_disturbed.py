@@ -43,6 +43,15 @@ def test_the_dissertation_cases_dock_safely_under_every_disturbance(tmp_path, fl
     assert_safe(summary)
 
 
+def test_the_turning_target_at_short_horizons_is_entered_only_at_a_speed_that_stays_in_its_corridor(tmp_path, flight_exe):
+    """Case 3 (target turning at 0.15 deg/s) at horizons 15 / 5 / 5: the rendezvous ends 214 m out, where the
+    corridor's faces move at up to 0.56 m/s. The approach entry counts that motion when it decides whether
+    the approach can stop before a face; counting the chaser's velocity alone, the run entered moving at
+    about 1 m/s relative to the turning corridor and left it by 5 m on this seed."""
+    summary, _ = disturbed_run(tmp_path, "case3_rotating", flight_args=("--horizon", "15,5,5"))
+    assert_safe(summary)
+
+
 def test_ten_random_starts_dock_safely_with_no_infeasible_approach_qp(tmp_path, flight_exe):
     """(A rendezvous QP can still be infeasible when a fast-closing chaser meets the re-centred keep-out
     planes far out; the recovery QP flies it and the record says so.)"""

@@ -116,3 +116,26 @@ def test_bad_parameters_raise_value_error():
     assert "keepout_radius_m" in str(e.value)
     with pytest.raises(ValueError):
         fsw.run_closed_loop(p, FAR)
+
+
+def test_the_approach_entry_counts_the_motion_of_a_turning_corridor():
+    """With the entry braking check on, the rendezvous hands over only when the approach can stop the
+    motion towards each corridor face. The faces turn with the target (Case 3: 0.15 deg/s about body z, the
+    corridor along LVLH +y), so the motion that counts is v - omega x rho: a chaser at rest 194 m out and
+    about 9 m inside the face the turning corridor sweeps towards it must wait; at rest before a still
+    target, or moving with the turning corridor, it enters."""
+    case = fsw.dissertation_case(3)
+    q, omega = case["q_lvlh_body"], case["omega_body_rad_s"]
+    p = fsw.GuidanceParams()
+    p.margins.approach_entry_brake_fraction = 0.5
+    rho = np.array([40.0, 190.0, 0.0])
+    with_corridor = np.cross(omega, rho)  # body z is LVLH z in this attitude
+    assert np.linalg.norm(with_corridor) > 0.5  # m/s: more than the approach can stop within 9 m at half its authority
+
+    def phase_after_one_step(v, rate):
+        return fsw.Guidance(p).step(fsw.NavInput(0, 0.0, np.r_[rho, v], q, rate)).phase
+
+    assert phase_after_one_step(np.zeros(3), omega) == fsw.Phase.Rendezvous
+    assert phase_after_one_step(np.zeros(3), np.zeros(3)) == fsw.Phase.Approach
+    assert phase_after_one_step(with_corridor, omega) == fsw.Phase.Approach
+    assert phase_after_one_step(-with_corridor, np.zeros(3)) == fsw.Phase.Rendezvous  # the same relative motion

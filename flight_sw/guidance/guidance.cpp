@@ -102,7 +102,8 @@ bool Guidance::ready_for_approach(const Vector6d& x, const TargetState& target, 
   const PhaseParams& ap = params_.approach;
   const double decel = fraction * ap.u_max_mps * (1.0 - params_.margins.input_fraction) / ap.Ts_s;
   const Eigen::Vector4d inside = -(H * rho).array() - margin;
-  const Eigen::Vector4d rate = H * x.tail<3>();  // > 0: moving towards the face
+  // > 0: moving towards the face, which turns with the target: d/dt (h'rho) = h'(v - omega x rho).
+  const Eigen::Vector4d rate = H * (x.tail<3>() - omega_lvlh(target).cross(rho));
   for (int j = 0; j < 4; ++j)
     if (rate(j) > 0.0 && rate(j) * rate(j) > 2.0 * decel * inside(j)) return false;
   return true;

@@ -29,6 +29,7 @@ struct ErrorModel {
 //   plan_reserve_fraction = 0.1         stages 1.. leave 10 % of that authority to the next plan
 //   approach_entry_brake_fraction = 0.5 rendezvous -> approach only when half the approach phase's
 //                                       deceleration stops the motion towards a corridor face before it
+//                                       (relative to the face, which turns with the target)
 //   approach_cone_m = u_max,a t_c       a lateral burn shorter than a full pulse acts up to t_c earlier
 //                                       than the prediction assumes
 //   approach_speed_cap_mps = 0.8        the approach phase's closing speed (braking at its limit from
