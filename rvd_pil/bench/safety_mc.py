@@ -3,6 +3,8 @@
     python -m rvd_pil.bench.safety_mc                      100 seeded random starts x 3 noise seeds
     python -m rvd_pil.bench.safety_mc --starts 10 --jobs 2 a smaller one
     python -m rvd_pil.bench.safety_mc --out DIR            where the run records go (default reports/safety_mc)
+    python -m rvd_pil.bench.safety_mc --base case3_rotating --starts 20 --noise-seeds 1 --flight-args "--horizon 15,5,5"
+        # random starts around Case 3's turning target, at short horizons
 
 Every run is the native flight executable against the host simulator over Zenoh (rvd_pil.host_sim.pil.run_pil)
 with the nonlinear truth (J2, drag), the Gauss-Markov thrust amplitude error, sensor noise (5 cm, 1 mm/s)
@@ -35,7 +37,8 @@ import numpy as np
 DISSERTATION_CH5 = {"dv_std_mean_mps": 4.25, "tf_std_mean_min": 19.536}
 
 
-def run_one(start: int, seed: int, run_dir: str, flight_exe: str | None, flight_args: tuple = ()) -> dict:
+def run_one(start: int, seed: int, run_dir: str, flight_exe: str | None, flight_args: tuple = (),
+            base: str = "case1_vbar") -> dict:
     """One run (in a worker process); returns its row."""
     from rvd_pil.host_sim import scenario
     from rvd_pil.host_sim.pil import run_pil
@@ -45,7 +48,7 @@ def run_one(start: int, seed: int, run_dir: str, flight_exe: str | None, flight_
     if path.exists():
         shutil.rmtree(path)  # an unfinished record of a killed run
     cfg = ServerConfig(delay_model="none")
-    summary, _ = run_pil(scenario.random_scenario(start), seed=seed, truth="nonlinear", sensor_noise=True,
+    summary, _ = run_pil(scenario.random_scenario(start, base), seed=seed, truth="nonlinear", sensor_noise=True,
                          thrust_noise=True, impulsive=False, flight_exe=flight_exe, flight_args=list(flight_args),
                          config=cfg, run_dir=path)
     return row_of(path)
@@ -84,17 +87,29 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="reports/safety_mc", help="output folder (default reports/safety_mc)")
     ap.add_argument("--flight-sw", default=None, help="flight executable (default build/native)")
     ap.add_argument("--flight-args", default="", help='extra flight options, e.g. "--margins off" (an ablation)')
+    ap.add_argument("--base", default="case1_vbar",
+                    help="the scenario whose target, vehicles and orbit the random starts keep (default case1_vbar; "
+                         "case3_rotating: a target turning at 0.15 deg/s)")
     args = ap.parse_args(argv)
     if args.starts < 1 or args.noise_seeds < 1 or args.jobs < 1:
         print("safety_mc: --starts, --noise-seeds and --jobs must be >= 1", file=sys.stderr)
         return 2
+    from rvd_pil.host_sim import scenario
     from rvd_pil.host_sim.pil import find_flight_executable
+
+    try:
+        scenario.load(args.base)
+    except Exception as exc:  # a name or path that is no scenario: say so before any run starts
+        print(f"safety_mc: --base {args.base}: {exc}", file=sys.stderr)
+        return 2
 
     exe = str(find_flight_executable(args.flight_sw))
     out = Path(args.out)
     flight_args = tuple(shlex.split(args.flight_args))
     setup = {"kind": "rvd-pil safety Monte Carlo 1", "truth": "nonlinear", "noise": "sensor+thrust",
              "burns": "finite", "delay": "none", "flight_args": list(flight_args)}
+    if args.base != "case1_vbar":  # (the earlier set-up files, all of case1_vbar, stay valid)
+        setup["base"] = args.base
     setup_file = out / "setup.json"
     if setup_file.exists() and json.loads(setup_file.read_text()) != setup:
         print(f"safety_mc: {out} holds another set-up ({setup_file}); choose another --out", file=sys.stderr)
@@ -115,7 +130,7 @@ def main(argv=None) -> int:
     t0 = time.monotonic()
     done = 0
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        pending = {pool.submit(run_one, s, k, d, exe, flight_args) for s, k, d in todo}
+        pending = {pool.submit(run_one, s, k, d, exe, flight_args, args.base) for s, k, d in todo}
         try:
             while pending:
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
