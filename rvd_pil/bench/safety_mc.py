@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import shlex
 import shutil
@@ -129,7 +130,9 @@ def main(argv=None) -> int:
     print(f"safety_mc: {len(rows)} runs reused, {len(todo)} to run on {args.jobs} process(es)", file=sys.stderr)
     t0 = time.monotonic()
     done = 0
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+    # Spawned workers, not forked: a fork of a process with threads running (a Zenoh session's, when
+    # the study is started from a process that flew runs before) can inherit a lock held mid-call and hang.
+    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         pending = {pool.submit(run_one, s, k, d, exe, flight_args, args.base) for s, k, d in todo}
         try:
             while pending:
