@@ -48,7 +48,7 @@ test: build
 	@# the system-mode images (Debian ARM kernels, busybox): fetched once into build/, ~15 s.
 	$(PY) -m rvd_pil.qemu prepare q7s rpi3
 	@cd $(NATIVE) && ctest --output-on-failure -j $(JOBS); c=$$?; \
-	cd $(CURDIR) && $(PY) -m pytest -q -n $(JOBS) --dist loadfile tests; p=$$?; \
+	cd $(CURDIR) && $(PY) -m pytest -q -n $(JOBS) --dist loadfile --durations=8 tests; p=$$?; \
 	if [ $$c -ne 0 ] || [ $$p -ne 0 ]; then echo "make test: FAILED (ctest exit $$c, pytest exit $$p)"; exit 1; fi
 
 asan: | deps
