@@ -447,13 +447,14 @@ def closed_loop_tails(seeds: int = 2, noise_scale: float = 0.02, thrust_error: f
                     forms = {"condensed": condense(qp)}
                     obj_fsw, obj_daqp = math.nan, math.nan
                     least = defaultdict(lambda: math.inf)
-                    for _ in range(repeats):
-                        obj_fsw, status, t_us, _ = run_flight_sw(qp, forms)
+                    solved = {}
+                    for rep in range(repeats):
+                        obj_fsw, status, t_us, _setup = run_flight_sw(qp, forms)
                         least["flight_sw cold"] = min(least["flight_sw cold"], t_us)
-                        bad[key]["flight_sw cold"] += status != "solved" and _ == 0
-                        obj_daqp, status, t_us, _ = run_daqp(qp, forms)
+                        solved.setdefault("flight_sw cold", status == "solved")
+                        obj_daqp, status, t_us, _setup = run_daqp(qp, forms)
                         least["daqp cold"] = min(least["daqp cold"], t_us)
-                        bad[key]["daqp cold"] += status != "solved" and _ == 0
+                        solved.setdefault("daqp cold", status == "solved")
                     # DAQP warm: the loop's model, updated with this QP (its last working set kept).
                     c = forms["condensed"]
                     m = len(c.h)
@@ -471,10 +472,10 @@ def closed_loop_tails(seeds: int = 2, noise_scale: float = 0.02, thrust_error: f
                             x, u = c.unstack(np.asarray(U), qp)
                             obj_warm = qp.objective(x, u) if exitflag == 1 else math.nan
                             bad[key]["daqp warm"] += not abs(obj_warm - obj_fsw) <= AGREE_REL * max(1.0, abs(obj_fsw))
-                    # flight_sw and DAQP solve the same QP to the same optimum; a disagreement is counted on both
+                    # flight_sw and DAQP solve the same QP to the same optimum; a disagreement counts on both
                     agree = abs(obj_daqp - obj_fsw) <= AGREE_REL * max(1.0, abs(obj_fsw))
-                    bad[key]["flight_sw cold"] += not agree
-                    bad[key]["daqp cold"] += not agree
+                    for name in ("flight_sw cold", "daqp cold"):
+                        bad[key][name] += not (solved[name] and agree)
                     least["flown"] = flown[k]
                     for name in solvers:
                         times[key][name].append(least[name])
