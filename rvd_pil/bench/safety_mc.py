@@ -100,7 +100,7 @@ def main(argv=None) -> int:
 
     try:
         scenario.load(args.base)
-    except Exception as exc:  # a name or path that is no scenario: say so before any run starts
+    except scenario.ScenarioError as exc:  # a name or path that is no scenario: say so before any run starts
         print(f"safety_mc: --base {args.base}: {exc}", file=sys.stderr)
         return 2
 

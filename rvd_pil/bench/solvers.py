@@ -73,6 +73,7 @@ from support.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, con
                             save_qp_set, solve_proxsuite, to_stacked)
 
 AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |f*|)
+PHASE_NAMES = tuple(PHASES)  # rendezvous, approach, docking: the guidance's Phase 1, 2, 3
 
 
 # ------------------------------------------------------------------------------------------------
@@ -150,18 +151,34 @@ def run_osqp(qp: OcpQpData, forms: dict):
         res.info.setup_time * 1e6
 
 
-def run_daqp(qp: OcpQpData, forms: dict):
+def daqp_model(c):
+    """A DAQP model of the condensed QP `c`, set up with the benchmark's settings (one-sided rows)."""
     import daqp
-    c = forms["condensed"]
     m = len(c.h)
-    model = daqp.Model()  # a new one per solve: a model solved before starts from its last working set
+    model = daqp.Model()
     model.settings = {**model.settings, "eps_prox": -1.0, "primal_tol": 1e-6, "dual_tol": 1e-6, "iter_limit": 100000}
     model.setup(c.H, c.g, c.G, c.h, np.full(m, -1e30), np.zeros(m, dtype=np.int32))
+    return model
+
+
+def daqp_objective(qp: OcpQpData, c, U, exitflag: int) -> float:
+    """The OCP objective of DAQP's answer U on the condensed QP c, NaN when it did not solve."""
+    if exitflag != 1:
+        return math.nan
+    x, u = c.unstack(np.asarray(U), qp)
+    return qp.objective(x, u)
+
+
+def agrees(objective: float, reference: float) -> bool:
+    return abs(objective - reference) <= AGREE_REL * max(1.0, abs(reference))
+
+
+def run_daqp(qp: OcpQpData, forms: dict):
+    c = forms["condensed"]
+    model = daqp_model(c)  # a new one per solve: a model solved before starts from its last working set
     before_timed_solve(forms)
     U, _, exitflag, info = model.solve()
-    ok = exitflag == 1
-    x, u = c.unstack(np.asarray(U), qp)
-    return (qp.objective(x, u) if ok else math.nan), ("solved" if ok else f"exitflag {exitflag}"), \
+    return daqp_objective(qp, c, U, exitflag), ("solved" if exitflag == 1 else f"exitflag {exitflag}"), \
         info["solve_time"] * 1e6, info["setup_time"] * 1e6
 
 
@@ -401,52 +418,61 @@ def warm_cold(seed: int = 0, random_starts: int = 6) -> None:
           "loop and the cold loop may fly slightly different trajectories (same QPs only at the first step)\n")
 
 
+def fly_repeated(case: int, horizons, seed: int, noise_scale: float, thrust_error: float, repeats: int):
+    """One noisy loop flown `repeats` times (bench.noisy_loops): per solved step its least flown solve
+    time and, from the first flight, its phase and QP; and the steps whose QP was infeasible (the
+    recovery QP flew) per phase. Raises when a repeat commands otherwise than the first flight."""
+    from rvd_pil.bench.noisy_loops import noisy_loop
+    from rvd_pil import flight_sw
+    flown, qps, commands, infeasible = {}, {}, {}, defaultdict(int)
+    for rep in range(repeats):
+        for k, g, cmd in noisy_loop(case, horizons, seed, noise_scale, thrust_error):
+            dv = tuple(cmd.dv_cmd_mps)
+            if commands.setdefault(k, dv) != dv:  # the repeat must fly the loop it times again
+                raise RuntimeError(f"Case {case} seed {seed}: repeat {rep} commanded {dv} at step {k}, "
+                                   f"not {commands[k]}: the loop is not deterministic")
+            ph = int(cmd.phase)
+            if ph not in (1, 2, 3) or not cmd.solved:
+                continue
+            if cmd.status == flight_sw.StepStatus.Recovered or cmd.solver_status != "solved":
+                infeasible[ph] += rep == 0
+                continue
+            flown[k] = min(flown.get(k, math.inf), cmd.solve_time_us)
+            if rep == 0:
+                qps[k] = (ph, from_dict(g.last_qp(cmd.phase), PHASE_NAMES[ph - 1]))
+    return flown, qps, infeasible
+
+
 def closed_loop_tails(seeds: int = 2, noise_scale: float = 0.02, thrust_error: float = 0.03, repeats: int = 3,
                       horizon_sets=None) -> None:
     """The closed loop's worst solve against its median, per phase and horizon, with the same QPs solved
     by DAQP side by side. Noisy in-process loops (bench.noisy_loops: CW plant, sensor noise, thrust
     error) of Cases 1-3, `seeds` seeds each. Each loop is flown `repeats` times (the same QPs: the noise
     is seeded and the guidance deterministic) and each step keeps its least time: flight_sw as flown
-    (warm, Command.solve_time_us). After each step the step's QP is solved `repeats` times by flight_sw
-    cold, DAQP cold (a new model per solve) and DAQP warm (one model per loop phase, updated with each
-    QP: it starts from its last working set, unshifted), least time kept. Steps whose QP was infeasible
-    (the recovery QP flew) are left out and counted. horizon_sets: default bench.noisy_loops'."""
-    from rvd_pil.bench.noisy_loops import HORIZON_SETS, noisy_loop
-    from rvd_pil import flight_sw
-    import daqp
-    names = ("rendezvous", "approach", "docking")
+    (warm, Command.solve_time_us). Then each step's QP is solved `repeats` times by flight_sw cold,
+    DAQP cold (a new model per solve) and DAQP warm (one model per loop phase and repeat, updated with
+    each QP: it starts from its last working set, unshifted), least time kept. Steps whose QP was
+    infeasible (the recovery QP flew) are left out and counted. horizon_sets: default bench.noisy_loops'."""
+    from rvd_pil.bench.noisy_loops import HORIZON_SETS
     solvers = ("flown", "flight_sw cold", "daqp cold", "daqp warm")
     times = defaultdict(lambda: defaultdict(list))  # (phase, N) -> solver -> least time per step
+    where = defaultdict(list)                       # (phase, N) -> (case, seed, step) per step
     bad = defaultdict(lambda: defaultdict(int))     # (phase, N) -> solver -> not solved / objective off
-    worst_at = {}                                   # (phase, N) -> the flown maximum's case, seed, step
     skipped = defaultdict(int)
     t0 = time.time()
     for horizons in horizon_sets or HORIZON_SETS:
         for case in (1, 2, 3):
             for seed in range(seeds):
-                flown, qps, commands = {}, {}, {}
-                for rep in range(repeats):
-                    for k, g, cmd in noisy_loop(case, horizons, seed, noise_scale, thrust_error):
-                        dv = tuple(cmd.dv_cmd_mps)
-                        if commands.setdefault(k, dv) != dv:  # the repeat must fly the loop it times again
-                            raise RuntimeError(f"Case {case} seed {seed}: repeat {rep} commanded {dv} at step {k}, "
-                                               f"not {commands[k]}: the loop is not deterministic")
-                        ph = int(cmd.phase)
-                        if ph not in (1, 2, 3) or not cmd.solved:
-                            continue
-                        if cmd.status == flight_sw.StepStatus.Recovered or cmd.solver_status != "solved":
-                            skipped[(names[ph - 1], horizons[ph - 1])] += rep == 0
-                            continue
-                        flown[k] = min(flown.get(k, math.inf), cmd.solve_time_us)
-                        if rep == 0:
-                            qps[k] = (ph, from_dict(g.last_qp(cmd.phase), names[ph - 1]))
-                models = {}
+                flown, qps, infeasible = fly_repeated(case, horizons, seed, noise_scale, thrust_error, repeats)
+                for ph, n in infeasible.items():
+                    skipped[(PHASE_NAMES[ph - 1], horizons[ph - 1])] += n
+                models = {}  # DAQP warm: (phase, repeat) -> the loop's model
                 for k in sorted(qps):
                     ph, qp = qps[k]
-                    key = (names[ph - 1], horizons[ph - 1])
+                    key = (PHASE_NAMES[ph - 1], horizons[ph - 1])
                     forms = {"condensed": condense(qp)}
-                    obj_fsw, obj_daqp = math.nan, math.nan
-                    least = defaultdict(lambda: math.inf)
+                    c = forms["condensed"]
+                    least = defaultdict(lambda: math.inf, flown=flown[k])
                     solved = {}
                     for rep in range(repeats):
                         obj_fsw, status, t_us, _setup = run_flight_sw(qp, forms)
@@ -455,43 +481,32 @@ def closed_loop_tails(seeds: int = 2, noise_scale: float = 0.02, thrust_error: f
                         obj_daqp, status, t_us, _setup = run_daqp(qp, forms)
                         least["daqp cold"] = min(least["daqp cold"], t_us)
                         solved.setdefault("daqp cold", status == "solved")
-                    # DAQP warm: the loop's model, updated with this QP (its last working set kept).
-                    c = forms["condensed"]
-                    m = len(c.h)
-                    for rep in range(repeats):
-                        if (ph, rep) not in models:
-                            model = models[(ph, rep)] = daqp.Model()
-                            model.settings = {**model.settings, "eps_prox": -1.0, "primal_tol": 1e-6, "dual_tol": 1e-6,
-                                              "iter_limit": 100000}
-                            model.setup(c.H, c.g, c.G, c.h, np.full(m, -1e30), np.zeros(m, dtype=np.int32))
+                        if (ph, rep) in models:
+                            models[(ph, rep)].update(H=c.H, f=c.g, A=c.G, bupper=c.h, blower=np.full(len(c.h), -1e30))
                         else:
-                            models[(ph, rep)].update(H=c.H, f=c.g, A=c.G, bupper=c.h, blower=np.full(m, -1e30))
+                            models[(ph, rep)] = daqp_model(c)
                         U, _, exitflag, info = models[(ph, rep)].solve()
                         least["daqp warm"] = min(least["daqp warm"], info["solve_time"] * 1e6)
                         if rep == 0:
-                            x, u = c.unstack(np.asarray(U), qp)
-                            obj_warm = qp.objective(x, u) if exitflag == 1 else math.nan
-                            bad[key]["daqp warm"] += not abs(obj_warm - obj_fsw) <= AGREE_REL * max(1.0, abs(obj_fsw))
+                            bad[key]["daqp warm"] += not agrees(daqp_objective(qp, c, U, exitflag), obj_fsw)
                     # flight_sw and DAQP solve the same QP to the same optimum; a disagreement counts on both
-                    agree = abs(obj_daqp - obj_fsw) <= AGREE_REL * max(1.0, abs(obj_fsw))
+                    agree = agrees(obj_daqp, obj_fsw)
                     for name in ("flight_sw cold", "daqp cold"):
                         bad[key][name] += not (solved[name] and agree)
-                    least["flown"] = flown[k]
                     for name in solvers:
                         times[key][name].append(least[name])
-                    if flown[k] >= max(times[key]["flown"]):
-                        worst_at[key] = (case, seed, k)
+                    where[key].append((case, seed, k))
         print(f"  ... horizons {horizons} done, {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
     print(f"closed-loop tails: Cases 1-3 x {seeds} seeds, noise scale {noise_scale}, thrust error {thrust_error:.0%} "
           f"(CW plant, in process); least of {repeats} per step; times in us (each solver's own clock)")
     print(f"{'phase':<11}{'N':>4}{'solves':>7}  {'solver':<15}{'median':>9}{'p99':>9}{'max':>9}{'max/median':>11}"
           f"{'bad':>5}")
-    for key in sorted(times, key=lambda k: (names.index(k[0]), k[1])):
+    for key in sorted(times, key=lambda k: (PHASE_NAMES.index(k[0]), k[1])):
         for name in solvers:
             t = np.array(times[key][name])
             print(f"{key[0]:<11}{key[1]:>4}{len(t):>7}  {name:<15}{np.median(t):>9.1f}{pct(t, 99):>9.1f}{t.max():>9.1f}"
                   f"{t.max() / np.median(t):>11.2f}{bad[key][name] if name != 'flown' else '-':>5}")
-        case, seed, k = worst_at[key]
+        case, seed, k = where[key][int(np.argmax(times[key]["flown"]))]
         note = f" (and {skipped[key]} infeasible steps left out)" if skipped[key] else ""
         print(f"{'':<15}flown maximum: Case {case} seed {seed} step {k}{note}\n")
     print("flown = the guidance's own solve, warm-started (interior point in the rendezvous, dual active set in "
