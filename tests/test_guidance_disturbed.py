@@ -104,9 +104,11 @@ def test_a_braking_thruster_weaker_than_its_estimate_does_not_swing_the_approach
 
 
 def test_without_the_braking_curve_the_monitor_sees_the_lateral_swing(tmp_path, flight_exe):
-    """The same run with the braking curve off: the swing the test above guards against is there."""
+    """The same run with the braking curve off: the swing the test above guards against is there. (The
+    rendezvous' braking curve off too: it hands this run over to the approach at another state.)"""
     summary, run_dir = disturbed_run(tmp_path, scenario.random_scenario(56), seed=30,
-                                     flight_args=("--set", "margins.approach_brake_fraction=0"))
+                                     flight_args=("--set", "margins.approach_brake_fraction=0",
+                                                  "--set", "margins.rendezvous_brake_fraction=0"))
     assert summary.safety["verdict"] == "unsafe"
     assert summary.safety["per_limit"]["approach_corridor"]["violations"] >= 1
     assert approach_corridor_clearance_m(run_dir) <= -5.0

@@ -30,12 +30,16 @@ ECG = ROOT / "examples" / "guidance" / "lq_ecg"
 SMALL = ROOT / "tests" / "guidance_laws" / "cvxpygen_small"
 IDEAL = dict(truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True)
 U_MAX = {1: 0.1786, 2: 0.1786, 3: 0.0357}  # per-phase |dv|_inf limits (params.cpp, Table 3.1)
-# The generated QOCOGEN code stops at abstol = reltol = 1e-7 (generate.py), ours (reference) at 1e-10.
-# Measured on Case 1's first five rendezvous QPs (N = 15): |du| <= 1.0e-6 m/s, the peer's objective
-# below ours by <= 2.0e-6 relative, paid for by hard rows violated by <= 1.0e-6 (m or m/s). Tolerances:
-DU_TOL_MPS = 1e-5
-DOBJ_TOL = 1e-5
-VIOL_TOL = 1e-5
+# The generated QOCOGEN code stops at abstol = reltol = 1e-7 (generate.py), relative to the problem's scale
+# (the rendezvous objective is about 4e7 here), ours (reference) at 1e-10. Measured on Case 1's first five
+# rendezvous QPs (N = 15), with the closing-speed rows of the rendezvous braking curve: |du| <= 1.0e-4 m/s,
+# the peer's objective below ours by <= 2.2e-4 relative, paid for by hard rows violated by <= 1.1e-4 (m or
+# m/s), all on one of the five QPs (the others within 3e-6). QOCO at 1e-9 failed on that QP.
+# Without those rows in the generated problem the peer's plan broke them by 2 m/s and its objective was 5 %
+# below ours: far outside. Tolerances:
+DU_TOL_MPS = 3e-4
+DOBJ_TOL = 5e-4
+VIOL_TOL = 3e-4
 
 
 @pytest.fixture(scope="module")

@@ -91,10 +91,13 @@ def test_the_in_process_path_flies_the_obstacles_as_the_executable_does(tmp_path
 ])
 def test_the_papers_rendezvous_to_a_holding_distance_through_the_harness(tmp_path, name, expect):
     """Dong et al.'s 3-D and Weiss et al.'s GEO scenarios as scenario files: the run ends "held" at the
-    holding distance, round the obstacles, with the figures the in-process benches print (CW, ideal)."""
+    holding distance, round the obstacles, with the figures the in-process benches print (CW, ideal). The
+    benches fly the papers' MPC, so the flight's rendezvous braking curve (a margin of ours; it makes Dong's
+    run 15 s longer and 3 % dearer) is off here."""
     path = Path(__file__).resolve().parent.parent / "rvd_pil" / "bench" / "scenarios" / name
     summary, _ = run_pil(scenario.load(path), truth="cw", sensor_noise=False, thrust_noise=False, impulsive=True,
-                         config=ServerConfig(delay_model="none"), run_dir=tmp_path / "run")
+                         config=ServerConfig(delay_model="none"), run_dir=tmp_path / "run",
+                         flight_args=["--set", "margins.rendezvous_brake_fraction=0"])
     assert summary.end == "held" and summary.held and not summary.docked
     assert summary.safety["verdict"] == "safe", summary.safety["episodes"]
     assert min(o["min_clearance"] for o in summary.safety["figures"]["obstacles"].values()) >= 1.0

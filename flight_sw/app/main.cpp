@@ -262,6 +262,7 @@ std::map<std::string, Param> named_params() {
   d("margins.approach_entry_brake_fraction", [](AppConfig& c) -> double& { return c.guidance.margins.approach_entry_brake_fraction; });
   d("margins.approach_speed_cap_mps", [](AppConfig& c) -> double& { return c.guidance.margins.approach_speed_cap_mps; });
   d("margins.approach_brake_fraction", [](AppConfig& c) -> double& { return c.guidance.margins.approach_brake_fraction; });
+  d("margins.rendezvous_brake_fraction", [](AppConfig& c) -> double& { return c.guidance.margins.rendezvous_brake_fraction; });
   d("margins.rotating_cone_factor", [](AppConfig& c) -> double& { return c.guidance.margins.rotating_cone_factor; });
   d("margins.overshoot_m", [](AppConfig& c) -> double& { return c.guidance.margins.overshoot_m; });
   d("margins.approach_cone_m", [](AppConfig& c) -> double& { return c.guidance.margins.approach_cone_m; });

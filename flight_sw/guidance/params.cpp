@@ -173,7 +173,8 @@ std::string GuidanceParams::validate() const {
     err << "margins.plan_reserve_fraction must be in [0, 1); ";
   if (!nonnegative(margins.keepout_m) || !nonnegative(margins.rotating_cone_factor) || !nonnegative(margins.estimate_sigmas) || !nonnegative(margins.approach_speed_cap_mps) ||
       !(margins.approach_entry_brake_fraction >= 0.0 && margins.approach_entry_brake_fraction <= 1.0) ||
-      !(margins.approach_brake_fraction >= 0.0 && margins.approach_brake_fraction <= 1.0) || !nonnegative(margins.overshoot_m) || !nonnegative(margins.approach_cone_m) || !nonnegative(margins.docking_cone_m) ||
+      !(margins.approach_brake_fraction >= 0.0 && margins.approach_brake_fraction <= 1.0) ||
+      !(margins.rendezvous_brake_fraction >= 0.0 && margins.rendezvous_brake_fraction <= 1.0) || !nonnegative(margins.overshoot_m) || !nonnegative(margins.approach_cone_m) || !nonnegative(margins.docking_cone_m) ||
       !nonnegative(margins.v_max_mps))
     err << "margins must be finite and >= 0; ";
   if (!(margins.v_max_mps < v_max_mps)) err << "margins.v_max_mps must be < v_max_mps; ";

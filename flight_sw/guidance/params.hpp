@@ -94,6 +94,10 @@ struct Margins {
   // fraction of the braking authority the plan's later stages have (0: no such limit). The rest is slack
   // for a braking thruster that turns out weaker than its estimate in the middle of the braking.
   double approach_brake_fraction = 0.0;
+  // Rendezvous, from stage 1 on: closing speed towards the stage's keep-out plane no faster than stops the
+  // chaser before it with this fraction of the braking authority (0: no such rows). A short horizon
+  // otherwise plans towards the sphere faster than it can brake once the braking distance comes into view.
+  double rendezvous_brake_fraction = 0.0;
   // Between two samples a spinning target's corridor turns by omega Ts while the chaser moves on a
   // chord: the corridor margin grows by rotating_cone_factor |rho_0| (omega Ts)^2 on a spinning target.
   double rotating_cone_factor = 0.0;

@@ -35,6 +35,11 @@ constexpr double kApproachBrakeFraction = 0.75;
 // sees 25-100 s ahead); without the curve such a plan closed faster than it could brake, met the plane
 // infeasible and left the corridor or hit the target in 500 of 500 ideal-world runs of the ch. 4 study.
 constexpr double kApproachBrakeFractionIdeal = 1.0;
+// The same curve in the rendezvous, towards each stage's keep-out plane, with the same fractions: a
+// 15-stage rendezvous (450 s) round a turning target closed at 2.9 m/s, met the braking distance only
+// when it no longer fitted, and 3 of 400 disturbed random starts entered the sphere (by up to 25 m).
+constexpr double kRendezvousBrakeFraction = kApproachBrakeFraction;
+constexpr double kRendezvousBrakeFractionIdeal = kApproachBrakeFractionIdeal;
 }  // namespace
 
 guidance::Margins derive_margins(const ErrorModel& e, const guidance::GuidanceParams& p) {
@@ -45,6 +50,7 @@ guidance::Margins derive_margins(const ErrorModel& e, const guidance::GuidancePa
   m.plan_reserve_fraction = disturbed ? kPlanReserve : 0.0;
   m.approach_speed_cap_mps = disturbed ? kApproachSpeedCap_mps : 0.0;
   m.approach_brake_fraction = disturbed ? kApproachBrakeFraction : kApproachBrakeFractionIdeal;
+  m.rendezvous_brake_fraction = disturbed ? kRendezvousBrakeFraction : kRendezvousBrakeFractionIdeal;
   m.estimate_sigmas = e.sigmas;
   const double chord = kSlideSpeed_mps * p.rendezvous.Ts_s;
   m.keepout_m = chord * chord / (8.0 * p.keepout_radius_m);

@@ -38,7 +38,10 @@ struct ErrorModel {
 //                                       overshoot plane (a braking thruster found weaker mid-braking);
 //                             = 1       undisturbed: no faster than all of it stops there (a horizon
 //                                       shorter than the braking otherwise plans past the point of no return)
-// The reserve and the speed cap apply when anything disturbs the run; the braking curve always.
+//   rendezvous_brake_fraction = 0.75 / 1   the same curve in the rendezvous, towards each stage's keep-out
+//                                       plane (a short horizon otherwise plans towards the sphere faster
+//                                       than it can brake once the braking distance comes into view)
+// The reserve and the speed cap apply when anything disturbs the run; the braking curves always.
 //   keepout_m       = (1 m/s Ts_r)^2 / (8 r1)   the sagitta of a period's chord round the sphere
 //   rotating_cone_factor = 2.5          a spinning target's corridor and plane turn between samples
 //   v_max_mps       = dv of one minimum impulse bit + 3 n^2 (r2 + 2 m) Ts_d: a correction smaller than

@@ -237,7 +237,8 @@ void bind_guidance(py::module_& m) {
       .def_readwrite("estimate_sigmas", &Margins::estimate_sigmas)
       .def_readwrite("approach_entry_brake_fraction", &Margins::approach_entry_brake_fraction)
       .def_readwrite("approach_speed_cap_mps", &Margins::approach_speed_cap_mps)
-      .def_readwrite("approach_brake_fraction", &Margins::approach_brake_fraction);
+      .def_readwrite("approach_brake_fraction", &Margins::approach_brake_fraction)
+      .def_readwrite("rendezvous_brake_fraction", &Margins::rendezvous_brake_fraction);
 
   py::class_<GuidanceParams>(m, "GuidanceParams",
                              "Every guidance parameter; defaults from dissertation Table 3.1 and "

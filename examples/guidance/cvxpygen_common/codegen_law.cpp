@@ -244,7 +244,7 @@ void load(Slot& s, bool with_dynamics) {
       for (int c = 0; c < 3; ++c) v[RVD_CPG_KEEPOUT_C][3 * keep + c] = qp.C[i](L.keepout_row, c);
       v[RVD_CPG_KEEPOUT_D][keep++] = qp.d[i](L.keepout_row);
     }
-    if (!v[RVD_CPG_SPEED_D].empty()) {  // generated on every approach stage; 0 <= 1 when this run has no cap
+    if (!v[RVD_CPG_SPEED_D].empty()) {  // generated on every approach and rendezvous stage; else 0 <= 1
       for (int c = 0; c < 3; ++c) v[RVD_CPG_SPEED_C][3 * speed + c] = L.speed_row >= 0 ? qp.C[i](L.speed_row, 3 + c) : 0.0;
       v[RVD_CPG_SPEED_D][speed++] = L.speed_row >= 0 ? qp.d[i](L.speed_row) : 1.0;
     }

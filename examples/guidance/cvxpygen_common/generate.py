@@ -19,8 +19,9 @@ cost q_i = -2 Q x_ref,i, the input box of every stage (it follows the thrusters'
 every state row whose normal turns with the chaser or the target: the rotating keep-out hyperplanes,
 the overshoot plane, the closing-speed row and the line-of-sight pyramids with their bounds. What is a
 constant (checked by the law against its own QP at create): the weights Q, Q_f, R and the soft rows'
-penalty lambda. Differences from our QP: none in the nominal QPs. The approach closing-speed row is
-always there (the law makes it 0 <= 1 when the run has no cap); the recovery QPs, the 1-norm rendezvous
+penalty lambda. Differences from our QP: none in the nominal QPs. The closing-speed rows of the
+approach and the rendezvous are always there (the law makes them 0 <= 1 when the run has no cap or
+braking curve); the recovery QPs, the 1-norm rendezvous
 and the obstacle rows are not generated (the law refuses those configurations, and on an infeasible QP
 commands zero thrust where our MPC solves its recovery QP).
 
@@ -131,6 +132,7 @@ def model(phase: str, N: int, w: dict):
     pos, vel, all_stages = slice(0, 3), slice(3, 6), list(range(1, N + 1))
     if phase == "rendezvous":
         rows("keepout", 1, pos, all_stages, soft=False)
+        rows("speed", 1, vel, all_stages, soft=False)  # the braking curve towards the keep-out planes
         if w["lambda"] > 0:
             rows("cone", 4, pos, [N], soft=True)
     elif phase == "approach":
