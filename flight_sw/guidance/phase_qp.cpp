@@ -418,10 +418,9 @@ void PhaseQp::fill_keepout_braking(const Vector6d& x0) {
     travelled += Ts_ * closing;
     const double d = std::max(range - keepout_radius_used_ - travelled, 0.0);
     // Never below the speed this braking stops within half the horizon: a plan sees such a braking
-    // whole, and its keep-out rows hold it. Lower bounds only fought the set point near the sphere (rows
+    // whole, and its keep-out rows hold it. Lower bounds only fought the set point near the sphere: rows
     // tight on every stage with multipliers of 1e5, and the interior point's numerical_error in 15-25 of
-    // 14000 in-process steps, where the active-set method solved the same QPs; with the floor at half the
-    // horizon left after stage i, still 2).
+    // 14000 in-process steps (the active-set method solved the same QPs).
     const double limit = std::max(0.5 * (std::sqrt(dv * dv + 8.0 * dv * d / Ts_) - dv), 0.5 * N_ * dv);
     const double bound = std::max(limit, -n_i.dot(x0.tail<3>()) - i * slowdown);
     const int row = stage(i).speed_row;
@@ -430,7 +429,6 @@ void PhaseQp::fill_keepout_braking(const Vector6d& x0) {
     closing = std::max(bound, 0.0);
   }
 }
-
 
 // The rendezvous set point's range from the target: outside the keep-out sphere, or the origin
 // when the no-set-point variant (Table 3.6) is chosen.
