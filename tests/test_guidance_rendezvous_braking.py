@@ -22,7 +22,7 @@ RECOVERED = next(k for k, name in GUIDANCE_STATUS.items() if name == "recovered"
 
 def rendezvous_plan(fraction, x0, N=15):
     """The rendezvous QP at x0 (a still target, body x along LVLH +y) with the curve at `fraction`
-    of the braking authority, and its solution: (qp, states, inputs)."""
+    of the braking authority, and its planned states: (qp, states)."""
     p = fsw.GuidanceParams()
     p.rendezvous.N = N
     p.margins.rendezvous_brake_fraction = fraction
@@ -31,7 +31,7 @@ def rendezvous_plan(fraction, x0, N=15):
     qp = b.build(np.asarray(x0, float), q)
     r = fsw.solve_ocp_qp(**qp, tol=1e-9, max_iter=200)
     assert r.status == "solved", r.status
-    return qp, np.asarray(r.x), r.u, p
+    return qp, np.asarray(r.x)
 
 
 def stop_distance_m(closing_mps, dv_per_period_mps, ts_s):
@@ -50,7 +50,7 @@ def test_the_rendezvous_plan_closes_on_each_keep_out_plane_no_faster_than_it_can
     x0 = [0.0, 1000.0, 0.0, 0.0, -2.5, 0.0]
     ts = fsw.GuidanceParams().rendezvous.Ts_s
     for fraction, must_stop in ((0.75, True), (0.0, False)):
-        qp, x, u, p = rendezvous_plan(fraction, x0)
+        qp, x = rendezvous_plan(fraction, x0)
         C, d = qp["C"], qp["d"]
         N = len(C) - 1
         u_box = np.asarray(qp["d"][1])[:3]  # the box's upper bounds on stage 1's inputs (symmetric box)

@@ -408,8 +408,7 @@ void PhaseQp::fill_keepout(const Vector6d& x0, const TargetState& target) {
 void PhaseQp::fill_keepout_braking(const Vector6d& x0) {
   if (stage(1).speed_row < 0) return;
   const Margins& m = params_.margins;
-  const double slowdown = 0.9 * u_max_ * (1.0 - m.input_fraction) * (1.0 - m.plan_reserve_fraction) *
-                          std::max(0.5, 1.0 - m.estimate_sigmas * quality_.thrust_scale_sigma);
+  const double slowdown = slowdown_mps();
   const double range = x0.head<3>().norm();
   double travelled = 0.0, closing = std::max(-keepout_normals_[1].dot(x0.tail<3>()), 0.0);
   for (int i = 1; i <= N_; ++i) {
@@ -421,7 +420,7 @@ void PhaseQp::fill_keepout_braking(const Vector6d& x0) {
     // whole, and its keep-out rows hold it. Lower bounds only fought the set point near the sphere: rows
     // tight on every stage with multipliers of 1e5, and the interior point's numerical_error in 15-25 of
     // 14000 in-process steps (the active-set method solved the same QPs).
-    const double limit = std::max(0.5 * (std::sqrt(dv * dv + 8.0 * dv * d / Ts_) - dv), 0.5 * N_ * dv);
+    const double limit = std::max(braking_curve_mps(dv, d), 0.5 * N_ * dv);
     const double bound = std::max(limit, -n_i.dot(x0.tail<3>()) - i * slowdown);
     const int row = stage(i).speed_row;
     qp_.C[i].block<1, 3>(row, 3) = -n_i.transpose();  // -n_i' v_i <= bound
@@ -490,9 +489,7 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
   // Closing-speed cap, reached from the current closing speed at 90 % of the planned authority per period.
   const double cap = params_.margins.approach_speed_cap_mps;
   const double closing0 = -(target.q_lvlh_body * Eigen::Vector3d::UnitX()).dot(x0.tail<3>());
-  const double slowdown = 0.9 * u_max_ * (1.0 - params_.margins.input_fraction) *
-                          (1.0 - params_.margins.plan_reserve_fraction) *
-                          std::max(0.5, 1.0 - params_.margins.estimate_sigmas * quality_.thrust_scale_sigma);
+  const double slowdown = slowdown_mps();
   // Braking curve: the fastest closing speed from which per-period decrements of approach_brake_fraction of
   // the later stages' braking authority stop the chaser at the plane (discrete: Ts (c^2 / 2 dv + c / 2) = d).
   // Without it the cost has the plan brake at the last moment with all of that authority: when the
@@ -526,7 +523,7 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
       if (brake_dv > 0.0) {
         reach -= Ts_ * closing;
         const double d = std::max(reach, 0.0);
-        limit = std::min(limit, 0.5 * (std::sqrt(brake_dv * brake_dv + 8.0 * brake_dv * d / Ts_) - brake_dv));
+        limit = std::min(limit, braking_curve_mps(brake_dv, d));
       }
       const double bound = std::max(limit, closing0 - i * slowdown);
       qp_.C[i].block<1, 3>(L.speed_row, 3) = -(q_i * Eigen::Vector3d::UnitX()).transpose();
@@ -539,6 +536,20 @@ void PhaseQp::build_approach(const Vector6d& x0, const TargetState& target) {
     }
   }
   if (holding) fill_holding_rows(x0, holding_radius_m_);  // in place of the overshoot plane
+}
+
+// How fast a closing-speed bound may fall from one stage to the next: 90 % of the authority the later
+// stages plan with, so the plan can always meet it from the closing speed now.
+double PhaseQp::slowdown_mps() const {
+  const Margins& m = params_.margins;
+  return 0.9 * u_max_ * (1.0 - m.input_fraction) * (1.0 - m.plan_reserve_fraction) *
+         std::max(0.5, 1.0 - m.estimate_sigmas * quality_.thrust_scale_sigma);
+}
+
+// The fastest closing speed from which per-period decrements dv stop the chaser within d (discrete,
+// impulsive: Ts (c^2 / 2 dv + c / 2) = d).
+double PhaseQp::braking_curve_mps(double dv, double d) const {
+  return 0.5 * (std::sqrt(dv * dv + 8.0 * dv * d / Ts_) - dv);
 }
 
 // Delta-v per period along `axis` that the later stages' input bounds (stage 1) allow every thruster

@@ -95,6 +95,8 @@ class PhaseQp {
   double estimate_margin_m() const { return params_.margins.estimate_sigmas * quality_.position_m; }
   void fill_input_box(int stage);
   double braking_authority_mps(const Eigen::Vector3d& axis) const;
+  double braking_curve_mps(double dv, double d) const;
+  double slowdown_mps() const;
   void fill_keepout_braking(const Vector6d& x0);
   void fill_keepout(const Vector6d& x0, const TargetState& target);
   void fill_setpoints(const TargetState& target, double range_m);
