@@ -6,7 +6,8 @@
 // for nx = 6, nu = 3):
 //  - Mode::Converged (ipm.cpp): primal-dual interior point, Mehrotra predictor-corrector with a
 //    Gondzio correctors when the step is short and iterative refinement in the late iterations, to
-//    Settings::tol on the relative primal and dual residuals and duality gap.
+//    Settings::tol on the relative primal and dual residuals and duality gap (README, "When the
+//    interior point stops").
 //  - Mode::FixedBarrier (fixed_barrier.cpp): Wang and Boyd's infeasible-start Newton method on the
 //    log-barrier problem with a fixed weight kappa; its iterates satisfy the rows strictly and its
 //    answer is at most m*kappa worse than the optimum (m = rows).

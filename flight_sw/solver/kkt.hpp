@@ -24,7 +24,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // Stage kernels, chosen once per solver from the dimensions.
 struct Kernels {
-  // rdx, rdu, rdyn and gz at (x, u, pi, lam); grad_scale and cons_scale from the cost gradient and rows.
+  // rdx, rdu, rdyn and gz at (x, u, pi, lam); grad_scale from the cost gradient and the costates,
+  // cons_scale from the rows.
   void (*residuals)(Workspace&, const OcpQp&, const double* x, const double* u, const double* pi,
                     const double* lam);
   // Factor the Newton system with row weights w.weff; false when the input block is not positive definite.

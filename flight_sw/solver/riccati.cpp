@@ -157,8 +157,11 @@ struct StageKernels {
     if (i > 0) {
       MapV<NX> rx(rdx, n);
       grad_x(w, qp, i, xi, rx);
-      gscale = std::max(gscale, rx.cwiseAbs().maxCoeff());
-      rx -= MapCV<NX>(pi + (i - 1) * n, n);
+      // The costates are terms of the same sum: with many tight rows they exceed the cost gradient by
+      // 1e3, and a dual residual measured against the gradient alone never met tol (README).
+      const MapCV<NX> pi_prev(pi + (i - 1) * n, n);
+      gscale = std::max({gscale, rx.cwiseAbs().maxCoeff(), pi_prev.cwiseAbs().maxCoeff()});
+      rx -= pi_prev;
     }
     if (i < N) dyn_transpose_add(w, qp, i, pi + i * n, rdx, rdu, i > 0);
     gt_mul_add(w, i, lam, w.rdu + w.uo[i], i > 0 ? rdx : nullptr);
