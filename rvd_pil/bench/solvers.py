@@ -70,7 +70,7 @@ from rvd_pil import paths
 
 paths.require_checkout("the peer-solver benchmark (its QP forms are tests/support/qp_forms.py)")
 from support.qp_forms import (PHASE_HORIZONS, PHASES, OcpQpData, PeerResult, condense, from_dict, load_qp_set,  # noqa: E402
-                            save_qp_set, solve_proxsuite, to_stacked)
+                            save_qp_set, solve_clarabel, solve_proxsuite, to_stacked)
 
 AGREE_REL = 1e-6  # objective agreement with the reference, relative to max(1, |f*|)
 PHASE_NAMES = tuple(PHASES)  # rendezvous, approach, docking: the guidance's Phase 1, 2, 3
@@ -257,21 +257,8 @@ def reference(qp: OcpQpData, forms: dict):
         ref = solve_proxsuite(qp, eps_abs=eps, stacked=forms["stacked"], max_iter=20000)
         if ref.status == "solved":
             return ref, f"proxsuite {eps:g}"
-    import clarabel
-    s = forms["stacked"]
-    settings = clarabel.DefaultSettings()
-    settings.verbose = False
-    settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = 1e-10
-    sol = clarabel.DefaultSolver(sp.triu(s.H).tocsc(), s.g, sp.vstack([s.Aeq, s.Cin]).tocsc(),
-                                 np.concatenate([s.beq, s.din]),
-                                 [clarabel.ZeroConeT(s.Aeq.shape[0]), clarabel.NonnegativeConeT(s.Cin.shape[0])],
-                                 settings).solve()
-    status = str(sol.status)
-    if status in ("Solved", "AlmostSolved"):
-        x, u = s.unstack(np.asarray(sol.x), qp.x0)
-        return PeerResult("solved", qp.objective(x, u), x, u, math.nan), "clarabel 1e-10"
-    return PeerResult("infeasible" if "Infeasible" in status else status, math.nan, None, None, math.nan), \
-        "proxsuite+clarabel"
+    ref = solve_clarabel(qp, stacked=forms["stacked"])
+    return ref, ("clarabel 1e-10" if ref.status == "solved" else "proxsuite+clarabel")
 
 
 class CacheEvictor:

@@ -640,6 +640,28 @@ def solve_proxsuite(qp: OcpQpData, *, eps_abs: float = 1e-10, eps_infeasible: fl
     return PeerResult(status, obj, x, u, float(info.solve_time))
 
 
+def solve_clarabel(qp: OcpQpData, *, tol: float = 1e-10, stacked: StackedQp | None = None) -> PeerResult:
+    """Reference solve with Clarabel (an interior point; gap and feasibility tolerances `tol`). It answers
+    where ProxSuite reaches its iteration cap or calls a feasible closed-loop QP infeasible."""
+    import math
+
+    import clarabel
+    import scipy.sparse as sp
+    s = stacked if stacked is not None else to_stacked(qp)
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = tol
+    sol = clarabel.DefaultSolver(sp.triu(s.H).tocsc(), s.g, sp.vstack([s.Aeq, s.Cin]).tocsc(),
+                                 np.concatenate([s.beq, s.din]),
+                                 [clarabel.ZeroConeT(s.Aeq.shape[0]), clarabel.NonnegativeConeT(s.Cin.shape[0])],
+                                 settings).solve()
+    status = str(sol.status)
+    if status in ("Solved", "AlmostSolved"):
+        x, u = s.unstack(np.asarray(sol.x), qp.x0)
+        return PeerResult("solved", qp.objective(x, u), x, u, float(sol.solve_time) * 1e6)
+    return PeerResult("infeasible" if "Infeasible" in status else status, math.nan, None, None, math.nan)
+
+
 # ------------------------------------------------------------------------------------------------
 # QP-set files
 
