@@ -156,15 +156,49 @@ def test_docking_tracks_the_rotating_port_and_bounds_velocity():
     ref = np.asarray(b.reference)
     for i in range(b.N + 1):
         qi = quat_after(VBAR, SPIN, i * b.Ts_s)
-        port = rotate(qi, [0.5, 0, 0])
-        np.testing.assert_allclose(ref[i, :3], port, atol=1e-12)
-        np.testing.assert_allclose(ref[i, 3:], np.cross(rotate(VBAR, SPIN), port), atol=1e-12)
+        aim = rotate(qi, [0.5 + p.docking_setpoint_offset_m, 0, 0])  # no margins: the cone's apex is the port
+        np.testing.assert_allclose(ref[i, :3], aim, atol=1e-12)
+        np.testing.assert_allclose(ref[i, 3:], np.cross(rotate(VBAR, SPIN), aim), atol=1e-12)
         np.testing.assert_allclose(qp["q"][i], -qp["Q"][i] @ ref[i], atol=1e-9)
         if i >= 1:
             v = b.velocity_row(i)
             np.testing.assert_array_equal(qp["C"][i][v:v + 3, 3:], np.eye(3))
             np.testing.assert_array_equal(qp["C"][i][v + 3:v + 6, 3:], -np.eye(3))
             np.testing.assert_array_equal(qp["d"][i][v:v + 6], p.v_max_mps)
+
+
+def test_the_docking_set_point_lies_inside_the_tightened_cone_and_the_plan_does_not_end_on_its_apex():
+    """With a margin m the docking cone's rows H (rho - port) <= -m meet at an apex m / sin(8 deg) out along
+    the axis, so the port itself lies outside them. The set point is docking_setpoint_offset_m beyond that
+    apex, capped at 90 % of r3 (the docked distance). Planned from 1.2 m out and 2 cm off the axis, with
+    ProxSuite: the plan ends inside r3 with at most one facet row tight on its last stages. Aimed at the apex instead
+    (offset 0) the plan ends on it with all four facet rows tight on every late stage: four rows on three
+    coordinates, which made the active set churn near the port."""
+    half = 8.0 * DEG
+    for margin, offset, expected_aim in ((0.0, 0.3, 0.3), (0.03, 0.1, 0.03 / math.sin(half) + 0.1),
+                                         (0.04, 0.3, 0.45), (0.03, 0.0, 0.03 / math.sin(half))):
+        p = variant(docking__N=30)
+        p.margins.docking_cone_m = margin
+        p.docking_setpoint_offset_m = offset
+        b = fsw.PhaseQp(fsw.Phase.Docking, p)
+        x0 = [0.02, -(0.5 + 1.2), 0.0, 0.0, 0.01, 0.0]  # VBAR: docking axis along LVLH -y, port at -0.5 y
+        qp = b.build(x0, VBAR)
+        port = rotate(VBAR, [0.5, 0, 0])
+        axis = rotate(VBAR, [1.0, 0, 0])
+        ref = np.asarray(b.reference)
+        np.testing.assert_allclose(ref[:, :3], np.tile(port + expected_aim * axis, (b.N + 1, 1)), atol=1e-12)
+        assert expected_aim <= 0.9 * p.dock_tolerance_m + 1e-12
+        status, u, x = solve_proxsuite(qp)
+        assert status == "PROXQP_SOLVED"
+        last = range(b.N - 5, b.N + 1)
+        slack = [-(np.asarray(qp["C"][i])[b.cone_row(i):b.cone_row(i) + 4] @ x[i]
+                   - np.asarray(qp["d"][i])[b.cone_row(i):b.cone_row(i) + 4]) for i in last]
+        tight = [int(np.sum(np.abs(s) < 1e-6)) for s in slack]
+        if offset > 0:
+            assert max(tight) <= 1, (margin, offset, tight)  # at most one facet holds it, not the apex
+            assert np.linalg.norm(x[b.N][:3] - port) < p.dock_tolerance_m  # the plan docks on its way in
+        else:
+            assert tight[-5:] == [4] * 5, (margin, offset, tight)  # all four facets tight: on the apex
 
 
 def test_bad_input_to_the_builder_is_refused():

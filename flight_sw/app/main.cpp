@@ -197,6 +197,7 @@ std::map<std::string, Param> named_params() {
   d("v_max_mps", [](AppConfig& c) -> double& { return c.guidance.v_max_mps; });
   d("rendezvous_setpoint_offset_m", [](AppConfig& c) -> double& { return c.guidance.rendezvous_setpoint_offset_m; });
   d("approach_setpoint_offset_m", [](AppConfig& c) -> double& { return c.guidance.approach_setpoint_offset_m; });
+  d("docking_setpoint_offset_m", [](AppConfig& c) -> double& { return c.guidance.docking_setpoint_offset_m; });
   d("rendezvous_switch_margin_m", [](AppConfig& c) -> double& { return c.guidance.rendezvous_switch_margin_m; });
   d("approach_switch_margin_m", [](AppConfig& c) -> double& { return c.guidance.approach_switch_margin_m; });
   d("obstacle_margin_m", [](AppConfig& c) -> double& { return c.guidance.obstacle_margin_m; });

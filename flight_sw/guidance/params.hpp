@@ -125,6 +125,9 @@ struct GuidanceParams {
   bool rendezvous_use_setpoint = true;       // false: the set point is the target CoM (origin)
   double rendezvous_setpoint_offset_m = 0.0;  // set point on the axis at r1 + offset from the CoM
   double approach_setpoint_offset_m = 0.0;    // approach set point on the axis at r2 + offset
+  // Docking set point on the axis this far beyond the apex of the docking cone as the margins tighten it
+  // (the port when they are 0), and inside the docked distance r3 (README, "Set points"). 0: the apex.
+  double docking_setpoint_offset_m = 0.3;
 
   // Phase switching (Algorithm 1).
   double rendezvous_switch_margin_m = 20.0;  // rendezvous -> approach: inside the cone and |rho| <= r1 + margin

@@ -8,6 +8,9 @@ namespace rvd::guidance {
 namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
+// The docking set point at most this fraction of r3 out from the port: a set point on r3 itself is
+// reached only asymptotically (as r1 and r2 are, "Phase switching"), and the run would not dock.
+constexpr double kDockingAimOfR3 = 0.9;
 }  // namespace
 
 PhaseQp::StageLayout PhaseQp::stage(int i) const {
@@ -570,11 +573,19 @@ void PhaseQp::build_docking(const Vector6d& x0, const TargetState& target) {
   const double cone_margin = m.docking_cone_m + estimate_margin_m();
   const double v_bound = params_.v_max_mps - m.v_max_mps - m.estimate_sigmas * quality_.velocity_mps;
   const Eigen::Vector3d w = omega_lvlh(target);
+  // The set point: on the docking axis, inside the cone the margins tighten (its apex lies
+  // cone_margin / sin(half-angle) out from the port), and inside r3 so that the docked declaration
+  // is met on the way in. Aimed at the port, the plan's tail sat on the apex with all four facets
+  // active on every stage (four rows on three coordinates) and the active set churned near the port.
+  const double apex_m = cone_margin / std::sin(pp.los_half_angle_deg * kDeg);
+  const double aim_m = std::min(apex_m + params_.docking_setpoint_offset_m, kDockingAimOfR3 * params_.dock_tolerance_m);
+  const Eigen::Vector3d aim_body = params_.port_body_m + Eigen::Vector3d::UnitX() * aim_m;
   for (int i = 0; i <= N_; ++i) {
     const Eigen::Quaterniond q_i = attitude_after(target, i * Ts_);
     const Eigen::Vector3d port = q_i * params_.port_body_m;
-    reference_[i].head<3>() = port;
-    reference_[i].tail<3>() = w.cross(port);
+    const Eigen::Vector3d aim = q_i * aim_body;
+    reference_[i].head<3>() = aim;
+    reference_[i].tail<3>() = w.cross(aim);
     qp_.q[i].noalias() = -qp_.Q[i] * reference_[i];
     const StageLayout L = stage(i);
     if (L.cone_row >= 0) {  // hard cone with its apex at the port: H (rho - port) <= 0 (eq 3.12)

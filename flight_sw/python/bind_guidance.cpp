@@ -259,6 +259,8 @@ void bind_guidance(py::module_& m) {
       .def_readwrite("rendezvous_use_setpoint", &GuidanceParams::rendezvous_use_setpoint)
       .def_readwrite("rendezvous_setpoint_offset_m", &GuidanceParams::rendezvous_setpoint_offset_m)
       .def_readwrite("approach_setpoint_offset_m", &GuidanceParams::approach_setpoint_offset_m)
+      .def_readwrite("docking_setpoint_offset_m", &GuidanceParams::docking_setpoint_offset_m,
+                     "docking set point this far beyond the tightened docking cone's apex, inside r3")
       .def_readwrite("rendezvous_switch_margin_m", &GuidanceParams::rendezvous_switch_margin_m)
       .def_readwrite("approach_switch_margin_m", &GuidanceParams::approach_switch_margin_m)
       .def_readwrite("keepout_rate_cap_factor", &GuidanceParams::keepout_rate_cap_factor)

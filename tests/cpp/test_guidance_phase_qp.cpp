@@ -127,7 +127,8 @@ TEST_CASE("docking: hard pyramid with its apex at the port, and |v|_inf rows") {
     const int v = b.velocity_row(i);
     CHECK(b.qp().C[i].block<3, 3>(v, 3).isIdentity());
     CHECK(b.qp().d[i].segment<6>(v).isConstant(p.v_max_mps));
-    CHECK((b.reference()[i].head<3>() - port).norm() < 1e-12);
+    // The set point: on the axis, docking_setpoint_offset_m beyond the apex (no margins: the port).
+    CHECK((b.reference()[i].head<3>() - (port + p.docking_setpoint_offset_m * axis)).norm() < 1e-12);
   }
 }
 
