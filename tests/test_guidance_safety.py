@@ -32,7 +32,7 @@ def test_invalid_state_without_a_plan_gives_zero_thrust(bad):
     assert cmd.status == fsw.StepStatus.InvalidState
     assert cmd.fallback == fsw.Fallback.ZeroThrust
     assert not np.any(cmd.dv_cmd_mps) and not np.any(cmd.pulse_s)
-    assert not cmd.solved
+    assert not cmd.solved and cmd.solver_status == "not_run"  # (not a solver's verdict on the input)
     finite_and_bounded(cmd, p)
 
 

@@ -47,6 +47,7 @@ ClosedLoopResult run_closed_loop(const GuidanceParams& params, const Vector6d& x
     s.dv_alloc_mps = cmd.dv_alloc_mps;
     s.status = cmd.status;
     s.solver_status = cmd.solver.status;
+    s.solved = cmd.solved;
     s.iterations = cmd.solver.iterations;
     s.active_set_changes = cmd.solver.active_set_changes;
     s.solve_time_us = cmd.solver.solve_time_us;

@@ -23,6 +23,7 @@ struct ClosedLoopStep {
   Eigen::Vector3d dv_alloc_mps = Eigen::Vector3d::Zero();
   StepStatus status = StepStatus::ZeroThrust;
   solver::Status solver_status = solver::Status::InvalidInput;
+  bool solved = false;         // a phase QP was handed to the solver (else solver_status means nothing)
   int iterations = 0;          // interior-point iterations of the phase QP's solve
   int active_set_changes = 0;  // or the active-set method's row changes (entering and leaving)
   double solve_time_us = 0.0;

@@ -31,6 +31,12 @@ TargetState target_of(const Eigen::Vector4d& q_wxyz, const Eigen::Vector3d& omeg
   return t;
 }
 
+// A step's solver status by name, as the flight link codes it (solver_status_code): "not_run" (255)
+// when no phase QP went to the solver, except a budget spent before the solve ("time_limit").
+std::string solver_status_name(bool solved, solver::Status status) {
+  return solved || status == solver::Status::TimeLimit ? solver::to_string(status) : "not_run";
+}
+
 py::dict qp_lists(const solver::OcpQp& qp, const Vector6d& x0) {
   py::list A, B, b, Q, q, R, r, C, D, d, idxs, zs, Zs;
   for (int i = 0; i <= qp.dims.N; ++i) {
@@ -341,7 +347,8 @@ void bind_guidance(py::module_& m) {
       .def_readonly("step_time_us", &Command::step_time_us)
       .def_readonly("range_m", &Command::range_m)
       .def_readonly("port_distance_m", &Command::port_distance_m)
-      .def_property_readonly("solver_status", [](const Command& c) { return std::string(solver::to_string(c.solver.status)); })
+      .def_property_readonly("solver_status", [](const Command& c) { return solver_status_name(c.solved, c.solver.status); },
+                             "the phase QP's solve, or 'not_run' (as the link's 255) when no QP went to the solver this step")
       .def_property_readonly("iterations", [](const Command& c) { return c.solver.iterations; })
       .def_property_readonly("solve_time_us", [](const Command& c) { return c.solver.solve_time_us; })
       .def_property_readonly("primal_residual", [](const Command& c) { return c.solver.primal_residual; })
@@ -471,7 +478,7 @@ void bind_guidance(py::module_& m) {
       .def_property_readonly("status", [](const ClosedLoopResult& r) { return column<int>(r.log, [](const ClosedLoopStep& s) { return static_cast<int>(s.status); }); })
       .def_property_readonly("solver_status", [](const ClosedLoopResult& r) {
         std::vector<std::string> v;
-        for (const auto& s : r.log) v.push_back(solver::to_string(s.solver_status));
+        for (const auto& s : r.log) v.push_back(solver_status_name(s.solved, s.solver_status));
         return v;
       })
       .def_property_readonly("iterations", [](const ClosedLoopResult& r) { return column<int>(r.log, [](const ClosedLoopStep& s) { return s.iterations; }); })

@@ -383,7 +383,7 @@ def warm_cold(seed: int = 0, random_starts: int = 6) -> None:
                 run = flight_sw.run_closed_loop(params, c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"])
                 for ph, ipm_it, changes, t, status in zip(run.phase, run.iterations, run.active_set_changes,
                                                           run.solve_time_us, run.solver_status):
-                    if int(ph) not in (1, 2, 3) or status == "invalid_input" or t <= 0.0:  # docked, or no solve
+                    if int(ph) not in (1, 2, 3) or status == "not_run" or t <= 0.0:  # docked, or no solve
                         continue
                     # The interior point's iterations, or the active-set method's row changes (the
                     # cap falls back to the interior point: then both count)
