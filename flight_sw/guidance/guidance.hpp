@@ -66,6 +66,12 @@ struct Command {
   double port_distance_m = 0.0;    // distance to the docking port
 };
 
+// Whether a step's solver status says something: a QP went to the solver, or the step's time budget was
+// spent before it could (TimeLimit). Otherwise no solve ran (the link's "not run", 255).
+inline bool solver_status_reported(bool solved, solver::Status status) {
+  return solved || status == solver::Status::TimeLimit;
+}
+
 // Called around every solver call of a step (the phase QP, and the recovery QP when it runs), for a
 // caller that wants the solves alone bracketed (the flight executable brackets the whole law step).
 class SolveObserver {

@@ -31,10 +31,9 @@ TargetState target_of(const Eigen::Vector4d& q_wxyz, const Eigen::Vector3d& omeg
   return t;
 }
 
-// A step's solver status by name, as the flight link codes it (solver_status_code): "not_run" (255)
-// when no phase QP went to the solver, except a budget spent before the solve ("time_limit").
+// A step's solver status by name; "not_run" where the flight link sends 255.
 std::string solver_status_name(bool solved, solver::Status status) {
-  return solved || status == solver::Status::TimeLimit ? solver::to_string(status) : "not_run";
+  return solver_status_reported(solved, status) ? solver::to_string(status) : "not_run";
 }
 
 py::dict qp_lists(const solver::OcpQp& qp, const Vector6d& x0) {

@@ -28,9 +28,7 @@ void put_named(rvd_guidance_output* out, const char (&name)[L], double value) {
 }
 
 uint8_t solver_status_code(const Command& c) {
-  if (c.solver.status == solver::Status::TimeLimit) return static_cast<uint8_t>(c.solver.status);  // even unsolved
-  if (!c.solved) return RVD_SOLVER_NONE;
-  return static_cast<uint8_t>(c.solver.status);
+  return solver_status_reported(c.solved, c.solver.status) ? static_cast<uint8_t>(c.solver.status) : RVD_SOLVER_NONE;
 }
 
 // The law's state: the three-phase guidance, and the chaser's attitude controller where the truth has
