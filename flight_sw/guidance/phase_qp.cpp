@@ -80,28 +80,32 @@ PhaseQp::StageLayout PhaseQp::stage(int i) const {
 
 KeepoutPlanes plan_keepout_rotation(const Eigen::Vector3d& rho, const Eigen::Vector3d& axis, int N,
                                     double max_step_rad, KeepoutDirection direction) {
+  // Towards the antipode of the axis every great circle is about as short, and u0 x axis, the short
+  // way's turn, swings with noise-level components of rho: on a V-bar start opposite its port it
+  // turned by 35-80 degrees from one period to the next, and each swing moved every keep-out plane of
+  // the plan (a warm start the interior point then needs twice its usual iterations from). Out of
+  // reach, the turn leans towards the natural circulation's by this share of -cos(theta): continuous
+  // through the antipode, nothing where the axis is within reach or less than 90 degrees away.
+  constexpr double kAntipodeLean = 0.25;
   KeepoutPlanes plan;
   const double r = rho.norm();
   if (!(r > 1e-9) || N < 1) return plan;  // at the CoM there is no direction to turn from
   const Eigen::Vector3d u0 = rho / r;
   const double theta = std::acos(std::clamp(u0.dot(axis), -1.0, 1.0));
-  Eigen::Vector3d k = u0.cross(axis);
+  if (theta < 1e-9) return plan;  // already on the axis
   const Eigen::Vector3d natural(0.0, 0.0, -1.0);  // CW relative orbits circulate about -z of LVLH
-  if (k.norm() < 1e-12) {
-    if (theta < 1e-9) return plan;  // already on the axis
-    // Opposite the axis: every great circle is as short; take the one the natural motion follows.
-    k = natural - natural.dot(u0) * u0;
-    if (k.norm() < 1e-9) k = u0.unitOrthogonal();
-  }
-  k.normalize();
-  plan.rotation_axis = k;
-  plan.total_rad = theta;
-  if (direction == KeepoutDirection::NaturalMotion && theta > N * max_step_rad && k.dot(natural) < 0.0) {
-    // The axis is out of reach within this horizon: go round the way the relative orbit drifts.
-    plan.rotation_axis = -k;
-    plan.total_rad = 2.0 * kPi - theta;
-    plan.natural_way = true;
-  }
+  Eigen::Vector3d lean = natural - natural.dot(u0) * u0;  // the natural circulation's turn of u0
+  if (lean.norm() < 1e-9) lean = u0.unitOrthogonal();
+  lean.normalize();
+  const Eigen::Vector3d k = u0.cross(axis);  // the short way's turn, |k| = sin(theta)
+  const bool reachable = theta <= N * max_step_rad;
+  // Out of reach, with the short way against the natural circulation: go round the way the relative orbit drifts.
+  plan.natural_way = direction == KeepoutDirection::NaturalMotion && !reachable && k.dot(natural) < 0.0;
+  Eigen::Vector3d turn = plan.natural_way ? Eigen::Vector3d(-k) : k;
+  if (!reachable) turn += kAntipodeLean * std::max(0.0, -std::cos(theta)) * lean;
+  if (turn.norm() < 1e-12) turn = lean;  // exactly opposite the axis
+  plan.rotation_axis = turn.normalized();
+  plan.total_rad = plan.natural_way ? 2.0 * kPi - theta : theta;
   plan.step_rad = std::min(plan.total_rad / N, max_step_rad);
   return plan;
 }

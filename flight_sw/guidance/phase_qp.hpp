@@ -17,7 +17,8 @@
 namespace rvd::guidance {
 
 // Rotating keep-out hyperplanes (eqs 3.5-3.6): unit normals n_1..n_N that turn from the chaser's
-// direction towards `axis` in equal steps, each step capped at `max_step_rad`.
+// direction towards `axis` in equal steps, each step capped at `max_step_rad` (out of reach, towards the
+// antipode of the axis, the turn leans towards the natural circulation's: guidance README).
 struct KeepoutPlanes {
   Eigen::Vector3d rotation_axis = Eigen::Vector3d::UnitZ();  // n_{i+1} = Rot(rotation_axis, step) n_i
   double step_rad = 0.0;

@@ -89,3 +89,31 @@ TEST_CASE("keep-out planes: capped rate, and the natural-motion way when the axi
   CHECK(opp.total_rad == doctest::Approx(M_PI));
   CHECK(opp.rotation_axis.z() == doctest::Approx(-1.0));
 }
+
+TEST_CASE("keep-out planes: near the antipode of the axis the turn does not swing with small offsets") {
+  // A V-bar start opposite its port (the dissertation's Case 1): chaser on -y, axis +y. Offsets of a
+  // few metres at 1.5 km, as noise leaves between two periods, turn the short way's axis u0 x axis
+  // by more than 90 degrees; the planned turn may move by a few degrees only, and keeps the natural
+  // circulation's sense (about -z).
+  const int N = 30;
+  const double cap = 1.1e-3 * 30.0;
+  const Eigen::Vector3d axis(0, 1, 0);
+  const Eigen::Vector3d a(8.0, -1500.0, 6.0), b(-8.0, -1500.0, 2.0), c(-2.0, -1500.0, -5.0);
+  auto short_turn = [&](const Eigen::Vector3d& rho) { return Eigen::Vector3d(rho.normalized().cross(axis).normalized()); };
+  CHECK(std::acos(short_turn(a).dot(short_turn(b))) > 90.0 * kDeg);  // the ill-conditioned geometry
+  CHECK(std::acos(short_turn(a).dot(short_turn(c))) > 90.0 * kDeg);
+  const KeepoutPlanes pa = plan_keepout_rotation(a, axis, N, cap, KeepoutDirection::NaturalMotion);
+  for (const Eigen::Vector3d& rho : {b, c}) {
+    const KeepoutPlanes p = plan_keepout_rotation(rho, axis, N, cap, KeepoutDirection::NaturalMotion);
+    CHECK(std::acos(std::min(1.0, pa.rotation_axis.dot(p.rotation_axis))) < 3.0 * kDeg);
+    CHECK(p.rotation_axis.z() < -0.99);
+    CHECK(p.rotation_axis.norm() == doctest::Approx(1.0));
+    CHECK(std::abs(p.rotation_axis.dot(rho.normalized())) < 1e-12);  // a great circle through u0
+    CHECK(p.step_rad == doctest::Approx(cap));
+  }
+  // 30 degrees from the antipode the turn is the great circle to the axis within 5 degrees.
+  const Eigen::Vector3d d = 1500.0 * tilted(-axis, Eigen::Vector3d(1, 0, 0), 30.0 * kDeg);
+  const KeepoutPlanes pd = plan_keepout_rotation(d, axis, N, cap, KeepoutDirection::NaturalMotion);
+  const Eigen::Vector3d way = pd.natural_way ? Eigen::Vector3d(-short_turn(d)) : short_turn(d);
+  CHECK(std::acos(std::min(1.0, pd.rotation_axis.dot(way))) < 5.0 * kDeg);
+}
