@@ -1,6 +1,7 @@
 """flight_sw's Fast MPC solver from Python, against ProxSuite and against constructions whose answer
 is known (reachability LPs, barrier theory). QPs are MPC-like: CW dynamics, nx = 6, 3 thrust inputs
 plus slack inputs, box and halfspace rows, horizons 5..45."""
+import re
 from pathlib import Path
 
 import numpy as np
@@ -350,6 +351,14 @@ def test_bench_with_cold_caches_evicts_them_before_every_timed_solve(tmp_path, c
         assert sizes[0] >= 2 * int(text.rstrip("KMG")) * {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(text[-1], 1)
     rows = [line.split() for line in out.splitlines() if line.startswith("docking")]
     assert [r[2] for r in rows] == ["flight_sw", "daqp"] and all(r[8] == "0/2" for r in rows), out
+    # each QP's first timed solve against its repeats, per solver, with DAQP's set against flight_sw's
+    first = [line for line in out.splitlines() if line.startswith("  docking") and "iterations" not in line]
+    assert len(first) == 1, out
+    m = re.fullmatch(r"\s+docking\s+5\s+flight_sw (\S+) / (\S+), daqp (\S+) / (\S+) \((\S+) / (\S+)\)", first[0])
+    assert m, first[0]
+    f0, f1, d0, d1, r0, r1 = (float(v) for v in m.groups())
+    assert min(f0, f1, d0, d1) > 0.0
+    assert r0 == pytest.approx(d0 / f0, rel=0.01, abs=0.006) and r1 == pytest.approx(d1 / f1, rel=0.01, abs=0.006)
 
 
 @pytest.mark.parametrize("phase", ["rendezvous", "approach"])

@@ -14,6 +14,9 @@ the same MPC QPs, measured in one run. Prints figures; asserts nothing about spe
     python -m rvd_pil.bench.solvers --qp-set run.npz --cold-cache   # every timed solve starts with its
         # code and data out of the caches, as a guidance that solves once per control period meets them
 
+With two or more repeats, each QP's first timed solve is set against its repeats, per solver and cell:
+the first follows the reference solver and the other solvers, the repeats run back to back on one QP.
+
 Accuracy is matched, not assumed: every solver's objective is compared with a reference (ProxSuite,
 eps_abs 1e-10, or looser where it cannot get there; Clarabel at 1e-10 where ProxSuite fails) and
 disagreements are counted in the table. QPs the reference finds infeasible are listed, not timed.
@@ -501,6 +504,28 @@ def closed_loop_tails(seeds: int = 2, noise_scale: float = 0.02, thrust_error: f
           f"flight_sw's and DAQP's objectives more than {AGREE_REL:g} apart (relative)\n")
 
 
+def print_first_solves(times, groups, names, repeats: int) -> None:
+    """Each QP's first timed solve against its repeats, per solver. The first follows the reference
+    solve and the other solvers' runs (code and data partly out of the caches, branch predictors
+    trained on other code); the repeats run back to back on the same QP. A guidance solves each QP
+    once, after its own navigation and link code: between the two."""
+    def medians(key, name):  # times holds each QP's `repeats` solves in a block, the first solve first
+        t = times[key + (name,)]
+        return np.median(t[::repeats]), np.median([v for i, v in enumerate(t) if i % repeats])
+
+    print(f"each QP's first timed solve / its {repeats - 1} repeat(s), medians in us (in brackets: against "
+          "flight_sw's of the same kind, above 1: flight_sw is faster). The first runs after the reference solver "
+          "and the other solvers, code and data partly out of the caches; the repeats run back to back on one QP")
+    for key in groups:
+        ours = medians(key, "flight_sw") if "flight_sw" in names else (math.nan, math.nan)
+        cells = []
+        for name in names:
+            a, b = medians(key, name)
+            cells.append(f"{name} {a:.1f} / {b:.1f}" + ("" if name == "flight_sw" else f" ({a / ours[0]:.2f} / {b / ours[1]:.2f})"))
+        print(f"  {key[0]:<11}{key[1]:>4}  " + ", ".join(cells))
+    print()
+
+
 def print_parts(parts, times, groups, names) -> None:
     """flight_sw's solve time by part, and against DAQP's clock on what that clock covers."""
     ours = [n for n in names if any(k + (n,) in parts for k in groups)]  # the flight_sw forms in the run
@@ -656,6 +681,8 @@ def main(argv=None) -> int:
           "iterations: per solve, where the solver reports them (HPIPM; flight_sw: interior-point iterations, "
           "active-set changes where it runs the active-set method)\n")
 
+    if args.repeats > 1:
+        print_first_solves(times, groups, names, args.repeats)
     print_parts(parts, times, groups, names)
 
     if arena:
