@@ -352,5 +352,13 @@ gives status 'invalid_input'.)doc");
             if (v < 0 || v > Settings::kMaxActiveSetBulk) throw py::value_error("active_set_bulk must be in 0.." + std::to_string(Settings::kMaxActiveSetBulk));
             s.solver().settings().active_set_bulk = v;
           },
-          "violated rows that may join the most violated one per primal point of the active-set method (0: one at a time)");
+          "violated rows that may join the most violated one per primal point of the active-set method (0: one at a time)")
+      .def_property(
+          "separate_steps_above", [](PyOcpSolver& s) { return s.solver().settings().separate_steps_above; },
+          [](PyOcpSolver& s, double v) {
+            if (!(v >= 0.0)) throw py::value_error("separate_steps_above must be >= 0 (inf: never)");
+            s.solver().settings().separate_steps_above = v;
+          },
+          "relative primal residual above which the interior point's primal and dual variables take their own step "
+          "lengths (inf: one step length always)");
 }

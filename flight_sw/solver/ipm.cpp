@@ -6,7 +6,8 @@
 // stage-wise Newton system of kkt.hpp with row weight
 //   hard row: w = lam/t;   soft row: w (Zs + nu) / (Zs + w + nu),  nu = mu/s,
 // and right-hand side term v (below); one Riccati factorisation per iteration serves the
-// predictor, the corrector and the refinement steps.
+// predictor, the corrector and the refinement steps. Far from primal feasibility the primal and the
+// dual variables take separate step lengths (Settings::separate_steps_above).
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -33,31 +34,39 @@ bool factorize_regularised(Workspace& w, const OcpQp& qp, const detail::Kernels&
   return false;
 }
 
-// Row and soft-slack steps from the primal step (dx, du): dsig, dt, dlam, dmu by the elimination.
-// Returns the largest step keeping t, lam, s, mu nonnegative (unbounded when nothing blocks).
-// The soft rows (few) add their slack step first; then one pass without branches over every row:
-// dsig is 0 on hard rows (zeroed per solve) and a constant row's terms are all 0, so its steps are
-// too. The step bound is kept as its reciprocal max(-dv / v) = max(-dv * (1/v)), from the
+// The largest steps keeping the slacks t, s (primal) and the duals lam, mu nonnegative (unbounded
+// when nothing blocks); both() for one step length.
+struct StepBounds {
+  double primal, dual;
+  double both() const { return std::min(primal, dual); }
+};
+
+// Row and soft-slack steps from the primal step (dx, du): dsig, dt, dlam, dmu by the elimination,
+// and their bounds. The soft rows (few) add their slack step first; then one pass without branches
+// over every row: dsig is 0 on hard rows (zeroed per solve) and a constant row's terms are all 0, so
+// its steps are too. A bound is kept as its reciprocal max(-dv / v) = max(-dv * (1/v)), from the
 // reciprocals of the iteration: no division per row and back-solve.
-double recover_row_steps(Workspace& w, Step& s) {
+StepBounds recover_row_steps(Workspace& w, Step& s) {
   detail::g_mul_step(w, s.du, s.dx, s.dt);  // G dz
-  double inv_amax = 0.0;
+  double inv_primal = 0.0, inv_dual = 0.0;
   for (int j = 0; j < w.n_soft; ++j) {
     const int k = w.soft_list[j];
     const double dsig = (w.w[k] * s.dt[k] + w.asoft[k]) * w.inv_h[k];
     const double dmu = (-w.rcs[k] - w.mu[k] * dsig) * w.inv_s[k];
     s.dsig[k] = dsig;
     s.dmu[k] = dmu;
-    inv_amax = std::max(inv_amax, std::max(-dsig * w.inv_s[k], -dmu * w.inv_mu[k]));
+    inv_primal = std::max(inv_primal, -dsig * w.inv_s[k]);
+    inv_dual = std::max(inv_dual, -dmu * w.inv_mu[k]);
   }
   for (int k = 0; k < w.rows; ++k) {
     const double dt = -w.rin[k] - s.dt[k] + s.dsig[k];
     const double dlam = (-w.rc[k] - w.lam[k] * dt) * w.inv_t[k];
     s.dt[k] = dt;
     s.dlam[k] = dlam;
-    inv_amax = std::max(inv_amax, std::max(-dt * w.inv_t[k], -dlam * w.inv_lam[k]));
+    inv_primal = std::max(inv_primal, -dt * w.inv_t[k]);
+    inv_dual = std::max(inv_dual, -dlam * w.inv_lam[k]);
   }
-  return 1.0 / inv_amax;  // inf when nothing blocks
+  return {1.0 / inv_primal, 1.0 / inv_dual};  // inf when nothing blocks
 }
 
 // NaN/Inf anywhere in the step shows in the sum of its entries.
@@ -237,18 +246,18 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
       detail::gt_mul_add_step(w, w.vrow, w.gu, w.gx);
       K.back_solve(w, qp, w.rdyn, w.step);
       ++info_.back_solves;
-      double amax = recover_row_steps(w, w.step);
+      StepBounds bounds = recover_row_steps(w, w.step);
       for (int ref = 0; refine && ref < S.max_refinements && K.step_error(w, qp, w.step) > S.refine_below * tol; ++ref) {
         K.back_solve(w, qp, w.edyn, w.corr);
         ++info_.back_solves;
         for (int c = 0; c < (N + 1) * nx; ++c) w.step.dx[c] += w.corr.dx[c];
         for (int c = 0; c < w.inputs; ++c) w.step.du[c] += w.corr.du[c];
         for (int c = 0; c < N * nx; ++c) w.step.dpi[c] += w.corr.dpi[c];
-        amax = recover_row_steps(w, w.step);
+        bounds = recover_row_steps(w, w.step);
       }
-      return amax;
+      return bounds;
     };
-    const double amax_aff = std::min(1.0, direction(false));
+    const double amax_aff = std::min(1.0, direction(false).both());
     double gap_aff = 0.0;
     {
       const Step& s = w.step;
@@ -278,12 +287,14 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     // Rounding in the reduced system only matters once the barrier weights are large: refine the
     // step in the late iterations only.
     const bool refine = gap <= S.refine_from_gap * std::max(1.0, std::abs(obj));
-    double amax = direction(refine);
+    StepBounds bounds = direction(refine);
+    double amax = bounds.both();
     // Mehrotra's second-order term is a prediction; when it shortens the step a lot (typical when
     // the affine step is huge along a direction of tiny curvature) take the plain centred step.
     if (amax < S.second_order_keep * amax_aff) {
       centred_targets(false);
-      amax = direction(refine);
+      bounds = direction(refine);
+      amax = bounds.both();
     }
     // Gondzio's centrality corrector when the step is short: Mehrotra's direction alone can cycle
     // (e.g. an input bouncing between the two sides of its box). It pushes the complementarity
@@ -300,11 +311,12 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
         const int r = w.soft_list[j];
         w.rcs[r] -= push((w.sig[r] + atrial * s0.dsig[r]) * (w.mu[r] + atrial * s0.dmu[r]));
       }
-      const double a2 = direction(refine);
-      if (a2 >= 1.01 * amax) {
-        amax = a2;
+      const StepBounds b2 = direction(refine);
+      if (b2.both() >= 1.01 * amax) {
+        bounds = b2;
+        amax = b2.both();
       } else {
-        std::swap(w.step, w.spare);  // no better: keep the previous step
+        std::swap(w.step, w.spare);  // no better: keep the previous step (its bounds too)
         break;
       }
     }
@@ -316,7 +328,11 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     const double tau = gap <= S.late_from_gap * std::max(1.0, std::abs(obj)) ? S.step_to_boundary_late
                        : warm && k == 0                                     ? S.warm_step_to_boundary
                                                                             : S.step_to_boundary;
-    double alpha = std::min(1.0, tau * amax);
+    // Far from primal feasibility the primal and the dual variables each step to their own boundary
+    // (Settings::separate_steps_above).
+    const bool separate = pres > S.separate_steps_above * w.cons_scale;
+    double alpha = std::min(1.0, tau * (separate ? bounds.primal : amax));
+    double alpha_dual = separate ? std::min(1.0, tau * bounds.dual) : alpha;
     const Step& s = w.step;
     // On a primal-dual feasible iterate the gap after a step is quadratic in alpha with curvature
     // dt'dlam + ds'dmu = dz'H dz >= 0 (QPs, unlike LPs): a long step along a stiff direction can
@@ -328,9 +344,10 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
         quad += w.act[r] * s.dt[r] * s.dlam[r] + w.soft[r] * s.dsig[r] * s.dmu[r];
       }
       if (quad > 0.0 && lin < 0.0) alpha = std::min(alpha, -lin / (2.0 * quad));
+      alpha_dual = alpha;  // (never separate here: pres is below tol)
     }
 #ifdef RVD_SOLVER_TRACE
-    std::fprintf(stderr, "   sigma=%.2e alpha_aff=%.3e alpha=%.3e\n", sigma, amax_aff, alpha);
+    std::fprintf(stderr, "   sigma=%.2e alpha_aff=%.3e alpha=%.3e alpha_dual=%.3e\n", sigma, amax_aff, alpha, alpha_dual);
 #endif
     if (!step_finite(w, s)) {
       st = Status::NumericalError;
@@ -338,15 +355,15 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     }
     for (int c = nx; c < (N + 1) * nx; ++c) w.x[c] += alpha * s.dx[c];
     for (int c = 0; c < w.inputs; ++c) w.u[c] += alpha * s.du[c];
-    for (int c = 0; c < N * nx; ++c) w.pi[c] += alpha * s.dpi[c];
+    for (int c = 0; c < N * nx; ++c) w.pi[c] += alpha_dual * s.dpi[c];
     for (int r = 0; r < M; ++r) {
       w.t[r] += alpha * s.dt[r];
-      w.lam[r] += alpha * s.dlam[r];
+      w.lam[r] += alpha_dual * s.dlam[r];
     }
     for (int j = 0; j < w.n_soft; ++j) {  // (dsig = dmu = 0 on hard rows)
       const int r = w.soft_list[j];
       w.sig[r] += alpha * s.dsig[r];
-      w.mu[r] += alpha * s.dmu[r];
+      w.mu[r] += alpha_dual * s.dmu[r];
     }
   }
   info_.iterations += k;

@@ -83,6 +83,16 @@ struct Settings {
   // Warm start: complementarity products lifted to at least warm_centre x their mean (0: off;
   // tuned on closed loops: 0.01 saves 6 % of the iterations, 0.1 more on average but raises maxima).
   double warm_centre = 0.01;
+  // While the relative primal residual exceeds separate_steps_above, the primal variables (states,
+  // inputs, slacks) and the dual ones (multipliers) each step to their own boundary, as LP interior
+  // points do; below it, one step length. After a QP changed under the shifted plan (a keep-out way
+  // that turned round), a row the new QP releases keeps the large dual of the plan that violated it,
+  // and its fall to zero held every step to a few percent for several iterations. Noisy rendezvous
+  // loops (bench.noisy_loops, 12 seeds): warm solves of 13 or more iterations 8 -> 0 at N = 30 and
+  // 31 -> 14 at N = 45, their largest 13 -> 12 and 16 -> 14, every mean a little lower. Kept apart
+  // down to small duality gaps instead, the dual residual bounced near the optimum and some solves
+  // took longer (N = 15: 12 -> 13-16). inf: one step length always.
+  double separate_steps_above = 0.1;
   // Infeasibility: the dual iterate, scaled, is a Farkas certificate when its residual times
   // certificate_reach * |z| stays below its margin (so no plan within that reach of the iterate
   // exists); tested once the primal residual stalls (no halving over stall_window iterations).
