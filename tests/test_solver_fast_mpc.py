@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from rvd_pil import flight_sw
+from rvd_pil.bench.noisy_loops import noisy_loop
 from support.qp_forms import (
-    PHASES, OcpQpData, approach_qp, docking_qp, load_qp_set, random_mpc_qp, rendezvous_qp, save_qp_set,
-    solve_clarabel, solve_proxsuite, with_reach_row)
+    PHASES, OcpQpData, approach_qp, docking_qp, from_dict, load_qp_set, random_mpc_qp, rendezvous_qp,
+    save_qp_set, solve_clarabel, solve_proxsuite, with_reach_row)
 
 GENERATORS = {"random": random_mpc_qp, **PHASES}
 
@@ -262,7 +263,6 @@ def test_back_solves_per_factorisation_stay_within_the_documented_bound():
     max_refinements) back-solves per factorisation, 16 with the defaults (3 correctors, 2
     refinements), on the rendezvous QPs of two closed loops (Case 1 and Case 3, the rotating target),
     each solved cold and then warm from its own answer shifted one stage."""
-    from support.qp_forms import from_dict
     bound = 1 + (2 + 3) * (1 + 2)
     params = flight_sw.GuidanceParams()
     params.rendezvous.N, params.approach.N, params.docking.N = 30, 15, 12
@@ -317,9 +317,6 @@ def test_separate_step_lengths_take_the_warm_start_through_a_turn_of_the_keep_ou
     On the noisy closed loops' rendezvous QPs, solved warm as the guidance solves them: the same answers as
     Clarabel (and the same infeasibility verdicts), never more than one iteration more than with one step
     length, fewer in all, and at the turn two or more fewer."""
-    from rvd_pil.bench.noisy_loops import noisy_loop
-    from support.qp_forms import from_dict
-    p = flight_sw.GuidanceParams()
     assert math.isfinite(flight_sw.OcpSolver(6, [3, 0], [1, 1]).separate_steps_above)  # on by default
     totals, saved = {}, []
     for seed in range(4):

@@ -288,20 +288,18 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     // step in the late iterations only.
     const bool refine = gap <= S.refine_from_gap * std::max(1.0, std::abs(obj));
     StepBounds bounds = direction(refine);
-    double amax = bounds.both();
     // Mehrotra's second-order term is a prediction; when it shortens the step a lot (typical when
     // the affine step is huge along a direction of tiny curvature) take the plain centred step.
-    if (amax < S.second_order_keep * amax_aff) {
+    if (bounds.both() < S.second_order_keep * amax_aff) {
       centred_targets(false);
       bounds = direction(refine);
-      amax = bounds.both();
     }
     // Gondzio's centrality corrector when the step is short: Mehrotra's direction alone can cycle
     // (e.g. an input bouncing between the two sides of its box). It pushes the complementarity
     // products at a longer trial step back into [1/band, band] * sigma mu.
     const double band = S.corrector_band, lo = smu / band, hi = smu * band;
-    for (int c = 0; c < S.max_correctors && amax < S.correct_below; ++c) {
-      const double atrial = std::min(1.0, 1.5 * amax + 0.1);
+    for (int c = 0; c < S.max_correctors && bounds.both() < S.correct_below; ++c) {
+      const double atrial = std::min(1.0, 1.5 * bounds.both() + 0.1);
       std::swap(w.step, w.spare);  // the current step to the spare, rc/rcs keep their targets
       const Step& s0 = w.spare;
       auto push = [&](double prod) { return std::max(std::min(std::max(prod, lo), hi) - prod, -hi); };
@@ -312,9 +310,8 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
         w.rcs[r] -= push((w.sig[r] + atrial * s0.dsig[r]) * (w.mu[r] + atrial * s0.dmu[r]));
       }
       const StepBounds b2 = direction(refine);
-      if (b2.both() >= 1.01 * amax) {
+      if (b2.both() >= 1.01 * bounds.both()) {
         bounds = b2;
-        amax = b2.both();
       } else {
         std::swap(w.step, w.spare);  // no better: keep the previous step (its bounds too)
         break;
@@ -331,7 +328,7 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
     // Far from primal feasibility the primal and the dual variables each step to their own boundary
     // (Settings::separate_steps_above).
     const bool separate = pres > S.separate_steps_above * w.cons_scale;
-    double alpha = std::min(1.0, tau * (separate ? bounds.primal : amax));
+    double alpha = std::min(1.0, tau * (separate ? bounds.primal : bounds.both()));
     double alpha_dual = separate ? std::min(1.0, tau * bounds.dual) : alpha;
     const Step& s = w.step;
     // On a primal-dual feasible iterate the gap after a step is quadratic in alpha with curvature
