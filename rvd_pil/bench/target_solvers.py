@@ -22,8 +22,9 @@ one left: the solver's previous QP, as in a flight.
 
 Every answer is checked on the host: the OCP objective of the returned inputs (states rolled out)
 against the reference (ProxSuite at 1e-10, Clarabel where it fails), 1e-6 relative; a wrong or
-failed answer is counted as bad and its time left in. The reference needs the QP set's phase and
-horizon labels (the closed-loop set has them).
+failed answer is counted as bad and its time left in. Cells are picked by the QP set's phase labels
+(the closed-loop set has them). `--cells all` adds the rendezvous (the interior point), where DAQP's
+dense solves take QEMU minutes per cell.
 """
 from __future__ import annotations
 
@@ -224,6 +225,7 @@ def measure(qps, targets: list[str], work: Path | None = None, timeout_s: float 
         result[name] = {}
         for solver, (exe, qp_file, key) in exes.items():
             t0 = time.time()
+            print(f"  {name} {solver}: {len(qps)} QPs under QEMU ...", file=sys.stderr, flush=True)
             out, priced = run_priced(t, exe, qp_file, work / f"{name}-{solver}.blocks", timeout_s)
             answers = parse_answers(out, key)
             by_step = {r["step"]: r for r in priced}
@@ -247,7 +249,7 @@ def measure(qps, targets: list[str], work: Path | None = None, timeout_s: float 
                              "us_low": r["target_us_low"] if r else math.nan,
                              "us_high": r["target_us_high"] if r else math.nan})
             result[name][solver] = rows
-            print(f"  {name} {solver}: {len(qps)} QPs under QEMU in {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
+            print(f"  {name} {solver}: done in {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
     return result
 
 
