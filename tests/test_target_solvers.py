@@ -3,7 +3,8 @@ the same QPs solved under QEMU, each solve priced by the cycle model.
 
 Independent truths: every answer of both solvers, read back from the emulated process, agrees with
 ProxSuite's objective on the host (soft rows, the interior point's rendezvous QP and the active set's
-docking and approach QPs); the emulated flight_sw takes the active-set path on the same QPs as the
+docking and approach QPs), and a QP made infeasible through the dynamics (an LP's reach, exceeded)
+is called infeasible by the reference and by both; the emulated flight_sw takes the active-set path on the same QPs as the
 native build does (a change count, zero interior-point iterations) and the interior point on the
 rendezvous; every solve is one priced region; the table's ratios are the quotients of its medians.
 Hostile input: a truncated or foreign QP file stops each driver with its message, nothing solved."""
@@ -16,7 +17,7 @@ import numpy as np
 import pytest
 
 from rvd_pil import flight_sw
-from support.qp_forms import approach_qp, docking_qp, rendezvous_qp, save_qp_set
+from support.qp_forms import approach_qp, docking_qp, rendezvous_qp, save_qp_set, with_reach_row
 from support.user_mode import cross_target_or_skip
 
 pytestmark = pytest.mark.qemu
@@ -25,8 +26,9 @@ pytestmark = pytest.mark.qemu
 @pytest.fixture(scope="module")
 def qps():
     rng = np.random.default_rng(17)
+    beyond_reach = with_reach_row(docking_qp(5, rng), 3, np.eye(6)[0], 0.05)  # infeasible through the dynamics
     return [docking_qp(5, rng), docking_qp(5, rng), docking_qp(12, rng), approach_qp(5, rng), approach_qp(5, rng),
-            rendezvous_qp(15, rng)]
+            rendezvous_qp(15, rng), beyond_reach]
 
 
 @pytest.fixture(scope="module")
@@ -51,6 +53,9 @@ def test_both_solvers_answer_every_qp_on_both_targets_as_the_reference(measured,
             assert [r["phase"] for r in rows] == [qp.phase for qp in qps]
             bad = [(k, r["status"]) for k, r in enumerate(rows) if not r["agrees"]]
             assert not bad, (target, solver, bad)
+            # the QP beyond reach: the reference, DAQP (exit flag -1) and flight_sw all call it infeasible
+            assert [r["feasible"] for r in rows] == [True] * 6 + [False]
+            assert rows[-1]["status"] == ("-1" if solver == "daqp" else "infeasible")
             # one priced region per solve, with its instructions and a modelled time in its bounds
             for r in rows:
                 assert r["instructions"] > 1000
@@ -83,6 +88,7 @@ def test_the_emulated_solver_takes_the_native_solvers_path(measured, qps):
             assert abs(changes - r.active_set_changes) <= 1, line
             moved += changes > 0
     assert moved >= 3  # QPs whose optimum is not the unconstrained one
+    assert out[-1].split()[3] == "infeasible"
 
 
 def test_the_table_sets_each_cell_side_by_side(measured, capsys):
@@ -96,6 +102,9 @@ def test_the_table_sets_each_cell_side_by_side(measured, capsys):
         assert r["ratio_us_median"] == pytest.approx(r["daqp_us_median"] / r["flight_sw_us_median"])
         assert r["ratio_insns_median"] == pytest.approx(r["daqp_insns_median"] / r["flight_sw_insns_median"])
         assert r["flight_sw_bad"] == 0 and r["daqp_bad"] == 0
+        # the infeasible docking 5 QP is judged, not timed: the medians are over the feasible two
+        expect = (3, 1) if (r["phase"], r["N"]) == ("docking", 5) else (r["flight_sw_count"], 0)
+        assert (r["flight_sw_count"], r["flight_sw_infeasible"]) == expect
     target_solvers.print_table(rows)
     out = capsys.readouterr().out
     assert out.count("docking") == 4 and "ratio = DAQP / flight_sw" in out

@@ -22,7 +22,8 @@ one left: the solver's previous QP, as in a flight.
 
 Every answer is checked on the host: the OCP objective of the returned inputs (states rolled out)
 against the reference (ProxSuite at 1e-10, Clarabel where it fails), 1e-6 relative; a wrong or
-failed answer is counted as bad and its time left in. Cells are picked by the QP set's phase labels
+failed answer is counted as bad and its time left in. A QP the reference finds infeasible must be
+called infeasible by both, and is left out of the times, as in the host benchmark. Cells are picked by the QP set's phase labels
 (the closed-loop set has them). `--cells all` adds the rendezvous (the interior point), where DAQP's
 dense solves take QEMU minutes per cell.
 """
@@ -200,10 +201,12 @@ def measure(qps, targets: list[str], work: Path | None = None, timeout_s: float 
     the answer agrees with the reference. Returns {target: {solver: [row per QP]}}. The QP files and
     block profiles go to `work` (default: build/target_solvers/set-<digest of the QPs>)."""
     from rvd_pil.qemu import build, targets as registry
-    refs = []
+    refs = []  # the reference objective, or None where the reference found the QP infeasible
     for qp in qps:
         ref, who = host_bench.reference(qp, host_bench.prepare(qp))
-        refs.append(ref.objective if ref.status == "solved" else math.nan)
+        if ref.status != "solved" and "infeasible" not in ref.status.lower():
+            raise RuntimeError(f"the reference ({who}) could not solve a {qp.phase} N = {qp.N} QP: {ref.status}")
+        refs.append(ref.objective if ref.status == "solved" else None)
     condensed = [condense(qp) for qp in qps]
     ocp_file = (work or WORK) / "ocp.bin.tmp"
     ocp_file.parent.mkdir(parents=True, exist_ok=True)
@@ -232,18 +235,19 @@ def measure(qps, targets: list[str], work: Path | None = None, timeout_s: float 
             rows = []
             for k, qp in enumerate(qps):
                 status, vec = answers.get(k, ("missing", np.zeros(0)))
-                if solver == "daqp":
-                    ok_status = status == "1"
-                    obj = math.nan
-                    if ok_status:
-                        x, u = condensed[k].unstack(vec, qp)
-                        obj = qp.objective(x, u)
+                solved = status == ("1" if solver == "daqp" else "solved")  # DAQP's exit flag 1: optimal
+                if refs[k] is None:  # infeasible: the answer must say so (DAQP's exit flag -1)
+                    ok = status == ("-1" if solver == "daqp" else "infeasible")
+                elif not solved:
+                    ok = False
+                elif solver == "daqp":
+                    x, u = condensed[k].unstack(vec, qp)
+                    ok = host_bench.agrees(qp.objective(x, u), refs[k])
                 else:
-                    ok_status = status == "solved"
-                    obj = ocp_objective(qp, vec) if ok_status else math.nan
-                ok = ok_status and host_bench.agrees(obj, refs[k])
+                    ok = host_bench.agrees(ocp_objective(qp, vec), refs[k])
                 r = by_step.get(k)
                 rows.append({"phase": qp.phase, "N": qp.N, "status": status, "agrees": bool(ok),
+                             "feasible": refs[k] is not None,
                              "instructions": r["instructions"] if r else math.nan,
                              "us_nominal": r["target_us_nominal"] if r else math.nan,
                              "us_low": r["target_us_low"] if r else math.nan,
@@ -254,8 +258,10 @@ def measure(qps, targets: list[str], work: Path | None = None, timeout_s: float 
 
 
 def table(result: dict) -> list[dict]:
-    """Per target and cell: medians and p90s of both solvers, their ratios (DAQP / flight_sw: above 1,
-    flight_sw is faster) and the bad answers."""
+    """Per target and cell: medians and p90s of both solvers over the cell's feasible QPs (as the host
+    benchmark, which leaves the infeasible ones out of its times), their ratios (DAQP / flight_sw:
+    above 1, flight_sw is faster) and the bad answers over all its QPs (an infeasible QP not called
+    infeasible is bad)."""
     out = []
     for name, by_solver in result.items():
         order = list(host_bench.PHASE_HORIZONS)
@@ -265,13 +271,15 @@ def table(result: dict) -> list[dict]:
             row = {"target": name, "phase": phase, "N": N}
             for solver, rows in by_solver.items():
                 sel = [r for r in rows if (r["phase"], r["N"]) == (phase, N)]
-                us = np.array([r["us_nominal"] for r in sel])
-                ins = np.array([r["instructions"] for r in sel])
+                timed = [r for r in sel if r["feasible"]]
+                us = np.array([r["us_nominal"] for r in timed])
+                ins = np.array([r["instructions"] for r in timed])
                 row[f"{solver}_count"] = len(sel)
+                row[f"{solver}_infeasible"] = len(sel) - len(timed)
                 row[f"{solver}_bad"] = sum(not r["agrees"] for r in sel)
-                row[f"{solver}_us_median"] = float(np.median(us))
-                row[f"{solver}_us_p90"] = float(np.percentile(us, 90))
-                row[f"{solver}_insns_median"] = float(np.median(ins))
+                row[f"{solver}_us_median"] = float(np.median(us)) if len(us) else math.nan
+                row[f"{solver}_us_p90"] = float(np.percentile(us, 90)) if len(us) else math.nan
+                row[f"{solver}_insns_median"] = float(np.median(ins)) if len(ins) else math.nan
             for what in ("us_median", "us_p90", "insns_median"):
                 row[f"ratio_{what}"] = row[f"daqp_{what}"] / row[f"flight_sw_{what}"]
             out.append(row)
@@ -290,7 +298,8 @@ def print_table(rows: list[dict]) -> None:
               f"{r['flight_sw_bad']:>5d}/{r['flight_sw_count']} / {r['daqp_bad']}/{r['daqp_count']}")
     print("\nus = modelled target time of one solve (cycle model, nominal) at the target clock; ratio = DAQP / "
           "flight_sw (above 1: flight_sw is faster on that CPU); k insns = thousands of instructions per solve; "
-          "bad = answers off the reference by more than 1e-6 relative, or not solved")
+          "bad = answers off the reference by more than 1e-6 relative, not solved, or (on a QP the reference finds "
+          "infeasible) not called infeasible; the times leave the infeasible QPs out")
 
 
 def main(argv=None) -> int:
