@@ -119,6 +119,7 @@ def test_the_command_line_writes_its_table(qps, tmp_path, measured, capsys):
     saved = json.loads((tmp_path / "target-solvers.json").read_text())
     assert [(r["target"], r["phase"], r["N"]) for r in saved["table"]] == [("rpi3", "docking", 5)]
     assert len(saved["solves"]["rpi3"]["flight_sw"]) == 2
+    assert (tmp_path / "target-solvers.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(SystemExit):
         target_solvers.main(["--qp-set", str(path), "--cells", "docking"])
     with pytest.raises(SystemExit):

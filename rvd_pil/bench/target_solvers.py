@@ -302,6 +302,42 @@ def print_table(rows: list[dict]) -> None:
           "infeasible) not called infeasible; the times leave the infeasible QPs out")
 
 
+def plot(rows: list[dict], path: Path) -> Path:
+    """Per target, each cell's modelled median solve time of both solvers (bars, log scale) with the
+    p90 as a tick above each bar, and DAQP / flight_sw's median ratio over each pair."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    targets = list(dict.fromkeys(r["target"] for r in rows))
+    fig, axes = plt.subplots(len(targets), 1, figsize=(10, 3.4 * len(targets)), squeeze=False)
+    for ax, target in zip(axes[:, 0], targets):
+        sel = [r for r in rows if r["target"] == target]
+        x = np.arange(len(sel))
+        for i, (solver, label) in enumerate((("flight_sw", "flight_sw"), ("daqp", "DAQP"))):
+            med = np.array([r[f"{solver}_us_median"] for r in sel])
+            p90 = np.array([r[f"{solver}_us_p90"] for r in sel])
+            pos = x + (i - 0.5) * 0.38
+            ax.bar(pos, med, 0.38, label=f"{label} median")
+            ax.scatter(pos, p90, marker="_", s=160, color="black", zorder=3, label="p90" if i == 0 else None)
+        for xi, r in zip(x, sel):
+            top = max(r["flight_sw_us_p90"], r["daqp_us_p90"])
+            ax.annotate(f"{r['ratio_us_median']:.2f}x", (xi, top), textcoords="offset points", xytext=(0, 4),
+                        ha="center", fontsize=7)
+        ax.set_yscale("log")
+        ax.set_ylim(top=ax.get_ylim()[1] * 8)
+        ax.set_xticks(x, [f"{r['phase']}\nN = {r['N']}" for r in sel], fontsize=8)
+        ax.set_ylabel("modelled solve time [us]")
+        ax.set_title(f"{target}: one solve under QEMU, priced by the cycle model (labels: DAQP / flight_sw median)",
+                     fontsize=10)
+        ax.grid(axis="y", which="both", alpha=0.3)
+        ax.legend(fontsize=7, ncol=3, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m rvd_pil.bench.target_solvers", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -311,7 +347,8 @@ def main(argv=None) -> int:
                     help="phase:N cells, comma-separated, or 'all' (default: the docking and approach cells)")
     ap.add_argument("--per-cell", type=int, default=40, help="QPs per cell at most (default 40)")
     ap.add_argument("--targets", default="rpi3,q7s", help="emulated targets, comma-separated (default rpi3,q7s)")
-    ap.add_argument("--out", type=Path, default=None, help="write target-solvers.json (per-solve rows and the table) here")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="write target-solvers.json (per-solve rows and the table) and target-solvers.png here")
     a = ap.parse_args(argv)
     if a.per_cell < 1:
         ap.error("--per-cell must be >= 1")
@@ -338,6 +375,7 @@ def main(argv=None) -> int:
     if a.out is not None:
         a.out.mkdir(parents=True, exist_ok=True)
         (a.out / "target-solvers.json").write_text(json.dumps({"table": rows, "solves": result}, indent=1))
+        print(f"\nwrote {a.out / 'target-solvers.json'} and {plot(rows, a.out / 'target-solvers.png')}")
     print(f"\nwall time {time.time() - t0:.0f} s")
     return 0
 
