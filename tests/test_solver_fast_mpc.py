@@ -405,7 +405,9 @@ def test_bench_with_cold_caches_evicts_them_before_every_timed_solve(tmp_path, c
     assert m, first[0]
     f0, f1, d0, d1, r0, r1 = (float(v) for v in m.groups())
     assert min(f0, f1, d0, d1) > 0.0
-    assert r0 == pytest.approx(d0 / f0, rel=0.01, abs=0.006) and r1 == pytest.approx(d1 / f1, rel=0.01, abs=0.006)
+    # the ratios are of the unrounded medians; the medians are printed to 0.05, the ratios to 0.005
+    for r, d, f in ((r0, d0, f0), (r1, d1, f1)):
+        assert abs(r - d / f) <= d / f * (0.05 / d + 0.05 / f) * 1.01 + 0.005, (r, d, f)
 
 
 @pytest.mark.parametrize("phase", ["rendezvous", "approach"])
