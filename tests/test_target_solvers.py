@@ -144,3 +144,24 @@ def test_a_truncated_or_foreign_qp_file_stops_the_driver_with_its_reason(measure
     foreign.write_bytes(b"NOTAQPFILE" + good[10:])
     proc = user.run(t, exe, [str(foreign)], timeout_s=120)
     assert proc.returncode == 2 and "magic" in proc.stderr and "qp 0" not in proc.stdout
+
+
+def test_a_qp_the_solver_would_refuse_stops_the_flight_sw_driver_before_any_solve(measured, qps, tmp_path):
+    """A soft-row index beyond its stage's rows, or a NaN in the data: the driver names the QP and
+    what is wrong (OcpQp::validate) instead of solving it."""
+    import dataclasses
+    from rvd_pil.bench import target_solvers
+    from rvd_pil.qemu import build, targets, user
+    t = targets.load("rpi3")
+    exe = build.find_executable(build.build_dir(t), "rvd_solve_qp_file").path
+    soft = qps[3]  # an approach QP: soft cone rows
+    bad_index = dataclasses.replace(soft, idxs=[list(k) for k in soft.idxs])
+    bad_index.idxs[1][0] = soft.C[1].shape[0] + 5
+    nan_d = dataclasses.replace(soft, d=[np.array(d, float) for d in soft.d])
+    nan_d.d[2][0] = np.nan
+    for qp, why in ((bad_index, "idxs[1]"), (nan_d, "NaN or Inf")):
+        path = tmp_path / "bad.bin"
+        target_solvers.write_ocp_file(path, [qps[0], qp])
+        proc = user.run(t, exe, [str(path)], timeout_s=120)
+        assert proc.returncode == 2 and "QP 1:" in proc.stderr and why in proc.stderr, proc.stderr
+        assert proc.stdout.startswith("qp 0 status solved") and "qp 1" not in proc.stdout

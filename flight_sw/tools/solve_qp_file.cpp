@@ -18,6 +18,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "flight_sw/solver/elapsed.hpp"
@@ -86,7 +87,8 @@ int main(int argc, char** argv) {
     if (dims.N < 1 || dims.N > 1000 || dims.nx < 1 || dims.nx > 100) fail("implausible QP dimensions");
     for (auto* v : {&dims.nu, &dims.nc, &dims.ns}) {
       v->resize(dims.N + 1);
-      for (int& x : *v) x = in.i32();
+      for (int& x : *v)
+        if ((x = in.i32()) < 0 || x > 10000) fail("implausible QP dimensions");
     }
     bool soft = false;
     for (int s : dims.ns) soft = soft || s > 0;
@@ -114,6 +116,7 @@ int main(int argc, char** argv) {
       in.fill(qp.zs[i]), in.fill(qp.Zs[i]);
     }
     in.fill(slot->x0);
+    if (const std::string err = qp.validate(); !err.empty()) fail(("QP " + std::to_string(k) + ": " + err).c_str());
     FastMpcSolver& solver = slot->solver;
     solver.setup(qp);
     mark(rvd::kMarkerBegin, k);
