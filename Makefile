@@ -59,6 +59,7 @@ asan: | deps
 bench: build
 	$(PY) -m pip install -q -e ".[test,peers,bench]" --no-build-isolation
 	$(PY) -m rvd_pil.bench.solvers
+	$(PY) -m rvd_pil.bench.target_solvers --per-cell 10
 	$(PY) -m rvd_pil.bench.link_latency
 	$(PY) -m rvd_pil.bench.link_auth
 

@@ -4,6 +4,7 @@ cycles at the target clock). The host benchmark (`python -m rvd_pil.bench.solver
 on this machine's x86 core; this one answers the product's question for the peer that is closest on
 few inputs: on the flight computer, which solver is faster, and by how much.
 
+    python -m rvd_pil.bench.target_solvers                                  # synthetic MPC QPs (make bench)
     python -m rvd_pil.bench.target_solvers --qp-set cl.npz                  # docking and approach cells
     python -m rvd_pil.bench.target_solvers --qp-set cl.npz --cells docking:5 --per-cell 40 --targets rpi3
     python -m rvd_pil.bench.target_solvers --qp-set cl.npz --cells all --out reports/target-solvers
@@ -341,8 +342,9 @@ def plot(rows: list[dict], path: Path) -> Path:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m rvd_pil.bench.target_solvers", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--qp-set", type=Path, required=True,
-                    help="a QP set with phase labels (python -m rvd_pil.bench.solvers --closed-loop-set writes one)")
+    ap.add_argument("--qp-set", type=Path, default=None,
+                    help="a QP set with phase labels (python -m rvd_pil.bench.solvers --closed-loop-set writes one); "
+                         "default: the host benchmark's synthetic MPC set, --per-cell QPs per cell (seed 0)")
     ap.add_argument("--cells", default=",".join(ACTIVE_SET_CELLS),
                     help="phase:N cells, comma-separated, or 'all' (default: the docking and approach cells)")
     ap.add_argument("--per-cell", type=int, default=40, help="QPs per cell at most (default 40)")
@@ -352,9 +354,10 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.per_cell < 1:
         ap.error("--per-cell must be >= 1")
-    if not a.qp_set.is_file():
+    if a.qp_set is not None and not a.qp_set.is_file():
         ap.error(f"no QP set at {a.qp_set}")
-    qps = load_qp_set(str(a.qp_set))
+    qps = load_qp_set(str(a.qp_set)) if a.qp_set else host_bench.synthetic_set(a.per_cell, 0)
+    source = a.qp_set or "the synthetic MPC set"
     if a.cells == "all":
         order = list(host_bench.PHASE_HORIZONS)
         cells = [f"{p}:{n}" for p, n in sorted({(qp.phase, qp.N) for qp in qps if qp.phase},
@@ -366,9 +369,9 @@ def main(argv=None) -> int:
             ap.error(f"cells must read phase:N, got {bad}")
     qps = select(qps, cells, a.per_cell)
     if not qps:
-        ap.error(f"no QP of {cells} in {a.qp_set} (its QPs need phase labels)")
+        ap.error(f"no QP of {cells} in {source} (its QPs need phase labels)")
     t0 = time.time()
-    print(f"{len(qps)} QPs of {a.qp_set} ({', '.join(cells)}; at most {a.per_cell} per cell), targets {a.targets}\n")
+    print(f"{len(qps)} QPs of {source} ({', '.join(cells)}; at most {a.per_cell} per cell), targets {a.targets}\n")
     result = measure(qps, [t.strip() for t in a.targets.split(",") if t.strip()])
     rows = table(result)
     print_table(rows)
