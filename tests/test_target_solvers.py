@@ -11,6 +11,7 @@ Hostile input: a truncated or foreign QP file stops each driver with its message
 from __future__ import annotations
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -120,6 +121,11 @@ def test_the_command_line_writes_its_table(qps, tmp_path, measured, capsys):
     assert [(r["target"], r["phase"], r["N"]) for r in saved["table"]] == [("rpi3", "docking", 5)]
     assert len(saved["solves"]["rpi3"]["flight_sw"]) == 2
     assert (tmp_path / "target-solvers.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # without a set: the host benchmark's synthetic MPC QPs, each answer checked as above
+    assert target_solvers.main(["--cells", "docking:5", "--per-cell", "2", "--targets", "rpi3"]) == 0
+    out = capsys.readouterr().out
+    assert "2 QPs of the synthetic MPC set" in out
+    assert re.search(r"^rpi3\s+docking\s+5 .* 0/2 / 0/2$", out, re.M), out
     with pytest.raises(SystemExit):
         target_solvers.main(["--qp-set", str(path), "--cells", "docking"])
     with pytest.raises(SystemExit):
