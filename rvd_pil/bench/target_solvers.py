@@ -47,7 +47,7 @@ import numpy as np
 from rvd_pil import paths
 
 paths.require_checkout("the target peer benchmark (its QP forms are tests/support/qp_forms.py)")
-from support.qp_forms import condense, load_qp_set  # noqa: E402
+from support.qp_forms import load_qp_set  # noqa: E402
 
 from rvd_pil.bench import solvers as host_bench  # noqa: E402
 
@@ -103,18 +103,16 @@ def parse_answers(stdout: str, key: str) -> dict[int, tuple[str, np.ndarray]]:
     return answers
 
 
-def ocp_objective(qp, u_flat: np.ndarray) -> float:
-    """The OCP objective of inputs u (stages 0..N concatenated), states rolled out from x0."""
-    u, off = [], 0
-    for i in range(qp.N + 1):
-        u.append(u_flat[off:off + qp.nu[i]])
+def in_condensed_layout(c, qp, u_flat: np.ndarray) -> np.ndarray | None:
+    """flight_sw's inputs (stages 0..N concatenated) as a vector of the condensed QP `c` (whose soft
+    rows' slacks, which CondensedQp.unstack skips, stay 0); None when the count is wrong."""
+    if len(u_flat) != sum(qp.nu):
+        return None
+    U, off = np.zeros(c.H.shape[0]), 0
+    for i, s in enumerate(c.u_idx):
+        U[s.start:s.start + qp.nu[i]] = u_flat[off:off + qp.nu[i]]
         off += qp.nu[i]
-    if off != len(u_flat):
-        return math.nan
-    x = [np.asarray(qp.x0, float)]
-    for i in range(qp.N):
-        x.append(qp.A[i] @ x[-1] + qp.B[i] @ u[i] + qp.b[i])
-    return qp.objective(np.array(x), u)
+    return U
 
 
 # ---- builds ------------------------------------------------------------------------------------
@@ -203,12 +201,14 @@ def measure(qps, targets: list[str], work: Path | None = None, timeout_s: float 
     block profiles go to `work` (default: build/target_solvers/set-<digest of the QPs>)."""
     from rvd_pil.qemu import build, targets as registry
     refs = []  # the reference objective, or None where the reference found the QP infeasible
+    condensed = []  # DAQP's form of each QP (the host benchmark's)
     for qp in qps:
-        ref, who = host_bench.reference(qp, host_bench.prepare(qp))
+        forms = host_bench.prepare(qp)
+        ref, who = host_bench.reference(qp, forms)
         if ref.status != "solved" and "infeasible" not in ref.status.lower():
             raise RuntimeError(f"the reference ({who}) could not solve a {qp.phase} N = {qp.N} QP: {ref.status}")
         refs.append(ref.objective if ref.status == "solved" else None)
-    condensed = [condense(qp) for qp in qps]
+        condensed.append(forms["condensed"])
     ocp_file = (work or WORK) / "ocp.bin.tmp"
     ocp_file.parent.mkdir(parents=True, exist_ok=True)
     write_ocp_file(ocp_file, qps)
@@ -239,13 +239,11 @@ def measure(qps, targets: list[str], work: Path | None = None, timeout_s: float 
                 solved = status == ("1" if solver == "daqp" else "solved")  # DAQP's exit flag 1: optimal
                 if refs[k] is None:  # infeasible: the answer must say so (DAQP's exit flag -1)
                     ok = status == ("-1" if solver == "daqp" else "infeasible")
-                elif not solved:
-                    ok = False
-                elif solver == "daqp":
-                    x, u = condensed[k].unstack(vec, qp)
-                    ok = host_bench.agrees(qp.objective(x, u), refs[k])
                 else:
-                    ok = host_bench.agrees(ocp_objective(qp, vec), refs[k])
+                    c = condensed[k]
+                    U = vec if solver == "daqp" else in_condensed_layout(c, qp, vec)
+                    ok = solved and U is not None and len(U) == c.H.shape[0] and \
+                        host_bench.agrees(qp.objective(*c.unstack(U, qp)), refs[k])
                 r = by_step.get(k)
                 rows.append({"phase": qp.phase, "N": qp.N, "status": status, "agrees": bool(ok),
                              "feasible": refs[k] is not None,
