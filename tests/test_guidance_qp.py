@@ -229,6 +229,48 @@ def test_the_docking_set_point_lies_inside_the_tightened_cone_and_the_plan_does_
             assert tight[-5:] == [4] * 5, (margin, offset, tight)  # all four facets tight: on the apex
 
 
+def test_the_docking_plan_stops_at_the_stop_plane_instead_of_coasting_into_the_tightened_apex():
+    """The dissertation's docking weights (R / Q = 5e4) make braking dear and the set point cheap: from 0.6 m
+    out, closing at 1.9 cm/s, 2.7 cm off the axis, with a 4.5 cm cone margin (the flight's usual), the plan
+    without the stop plane coasts past the set point into the apex of the tightened cone (0.045 / sin 8 deg
+    = 0.323 m from the port) and stops there on the facets, all four tight on a stage. With the plane (the
+    default) it stops on the set point, docking_setpoint_offset_m beyond the apex, the plane's row holding
+    it, with at most two facets tight on a stage (a corner of the cone's cut by the plane), never the
+    apex. Solved by ProxSuite, so the behaviour is the QP's, not the solver's."""
+    port, axis = rotate(VBAR, [0.5, 0, 0]), rotate(VBAR, [1.0, 0, 0])
+    apex = 0.045 / math.sin(8.0 * DEG)
+    aim = apex + fsw.GuidanceParams().docking_setpoint_offset_m
+    x0 = [-0.011, -(0.5 + 0.6), -0.025, 0.0, 0.019, 0.0]  # VBAR: the docking axis is LVLH -y
+    ends = {}
+    for penalty in (1e4, 0.0):
+        p = fsw.GuidanceParams()
+        p.margins.docking_cone_m = 0.045
+        p.docking_stop_penalty = penalty
+        b = fsw.PhaseQp(fsw.Phase.Docking, p)
+        qp = b.build(x0, VBAR)
+        status, _, x = solve_proxsuite(qp)
+        assert status == "PROXQP_SOLVED"
+        axial = np.array([(np.asarray(x[i][:3]) - port) @ axis for i in range(b.N + 1)])
+        tight = []
+        for i in range(1, b.N + 1):
+            c = b.cone_row(i)
+            slack = np.asarray(qp["d"][i])[c:c + 4] - np.asarray(qp["C"][i])[c:c + 4] @ x[i]
+            tight.append(int(np.sum(slack < 1e-6)))
+        ends[penalty] = (axial, tight)
+        if penalty > 0:
+            on_plane = [abs(np.asarray(qp["C"][i])[b.stop_row(i)] @ x[i] - np.asarray(qp["d"][i])[b.stop_row(i)])
+                        < 1e-8 for i in range(1, b.N + 1)]
+            assert any(on_plane), on_plane  # the plane's row stops the plan (it then floats within 1 mm of it)
+        else:
+            assert b.stop_row(b.N) == -1
+    axial, tight = ends[1e4]
+    assert axial.min() > aim - 1e-3 and abs(axial[-1] - aim) < 1e-3, axial
+    assert max(tight) <= 2, tight
+    axial, tight = ends[0.0]
+    assert abs(axial[-1] - apex) < 2e-3, axial  # coasted onto the tightened apex
+    assert max(tight) >= 3, tight
+
+
 def test_bad_input_to_the_builder_is_refused():
     p = fsw.GuidanceParams()
     with pytest.raises(ValueError):

@@ -198,6 +198,7 @@ std::map<std::string, Param> named_params() {
   d("rendezvous_setpoint_offset_m", [](AppConfig& c) -> double& { return c.guidance.rendezvous_setpoint_offset_m; });
   d("approach_setpoint_offset_m", [](AppConfig& c) -> double& { return c.guidance.approach_setpoint_offset_m; });
   d("docking_setpoint_offset_m", [](AppConfig& c) -> double& { return c.guidance.docking_setpoint_offset_m; });
+  d("docking_stop_penalty", [](AppConfig& c) -> double& { return c.guidance.docking_stop_penalty; });
   d("rendezvous_switch_margin_m", [](AppConfig& c) -> double& { return c.guidance.rendezvous_switch_margin_m; });
   d("approach_switch_margin_m", [](AppConfig& c) -> double& { return c.guidance.approach_switch_margin_m; });
   d("obstacle_margin_m", [](AppConfig& c) -> double& { return c.guidance.obstacle_margin_m; });

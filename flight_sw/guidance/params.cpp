@@ -131,6 +131,7 @@ std::string GuidanceParams::validate() const {
   if (!std::isfinite(approach_setpoint_offset_m) || approach_stop_m + approach_setpoint_offset_m < 0.0)
     err << "approach_setpoint_offset_m must keep the set point range >= 0; ";
   if (!nonnegative(docking_setpoint_offset_m)) err << "docking_setpoint_offset_m must be >= 0; ";
+  if (!nonnegative(docking_stop_penalty)) err << "docking_stop_penalty must be >= 0; ";
   if (!nonnegative(rendezvous_switch_margin_m)) err << "rendezvous_switch_margin_m must be >= 0; ";
   if (!nonnegative(approach_switch_margin_m)) err << "approach_switch_margin_m must be >= 0; ";
   if (!positive(keepout_rate_cap_factor)) err << "keepout_rate_cap_factor must be > 0; ";

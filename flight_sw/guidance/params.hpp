@@ -127,7 +127,14 @@ struct GuidanceParams {
   double approach_setpoint_offset_m = 0.0;    // approach set point on the axis at r2 + offset
   // Docking set point on the axis this far beyond the apex of the docking cone as the margins tighten it
   // (the port when they are 0), and inside the docked distance r3 (README, "Set points"). 0: the apex.
-  double docking_setpoint_offset_m = 0.3;
+  // 5 cm: the tightened cone is 7 mm wide there, so a plan stopped on it has come to the axis.
+  double docking_setpoint_offset_m = 0.05;
+  // A soft plane through the docking set point, normal to the axis, on stages 1..N: axial distance from
+  // the port >= the set point's, at this penalty per metre past it (0: no plane, the dissertation's
+  // docking QP). With its weights (R / Q = 5e4) a plan brakes for constraints, not for the set point:
+  // without the plane it coasted into the apex of the tightened cone, three or four of its facets
+  // tight on each late stage (README, "Set points").
+  double docking_stop_penalty = 1e4;
 
   // Phase switching (Algorithm 1).
   double rendezvous_switch_margin_m = 20.0;  // rendezvous -> approach: inside the cone and |rho| <= r1 + margin

@@ -56,6 +56,10 @@ PhaseQp::StageLayout PhaseQp::stage(int i) const {
       if (i >= 1) {
         L.cone_row = row(4);
         L.vel_row = row(6);
+        if (params_.docking_stop_penalty > 0.0) {
+          L.stop_row = row(1);
+          soft(1);
+        }
       }
       break;
   }
@@ -196,6 +200,7 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
       qp_.C[i].block<3, 3>(L.vel_row, 3).setIdentity();
       qp_.C[i].block<3, 3>(L.vel_row + 3, 3) = -Eigen::Matrix3d::Identity();
     }
+    if (L.stop_row >= 0) soft(L.stop_row, 1, params_.docking_stop_penalty, 0.0);
     if (recovery_ && i >= 1) {
       const double lin = params_.recovery_weight, quad = 2.0 * params_.recovery_quadratic;
       if (L.keepout_row >= 0) soft(L.keepout_row, 1, lin, quad);
@@ -222,6 +227,7 @@ PhaseQp::PhaseQp(Phase phase, const GuidanceParams& params, bool recovery)
 int PhaseQp::keepout_row(int i) const { return stage(i).keepout_row; }
 int PhaseQp::cone_row(int i) const { return stage(i).cone_row; }
 int PhaseQp::velocity_row(int i) const { return stage(i).vel_row; }
+int PhaseQp::stop_row(int i) const { return stage(i).stop_row; }
 int PhaseQp::obstacle_row(int i) const { return stage(i).obstacle_row; }
 int PhaseQp::entry_row(int i) const { return stage(i).entry_row; }
 
@@ -599,6 +605,11 @@ void PhaseQp::build_docking(const Vector6d& x0, const TargetState& target) {
       qp_.d[i].segment<4>(L.cone_row).array() -= cone_margin;
     }
     if (L.vel_row >= 0) qp_.d[i].segment<6>(L.vel_row).setConstant(v_bound);
+    if (L.stop_row >= 0) {  // -axis' rho <= -axis' aim: no nearer the port than the set point
+      const Eigen::Vector3d axis = q_i * Eigen::Vector3d::UnitX();
+      qp_.C[i].block<1, 3>(L.stop_row, 0) = -axis.transpose();
+      qp_.d[i](L.stop_row) = -axis.dot(aim);
+    }
   }
 }
 

@@ -34,6 +34,7 @@ class PhaseQp {
   // 1-norm rows, and in the recovery variant every hard state row) are listed in the QP's idxs.
   struct StageLayout {
     int box_row = -1, keepout_row = -1, cone_row = -1, t_row = -1, w_row = -1, vel_row = -1, speed_row = -1;
+    int stop_row = -1;      // docking: the soft stop plane through the set point (stages 1..N), -1 if none
     int entry_row = -1;     // first of the entry cone's 2 soft rows (stages 1..N), -1 if none
     int obstacle_row = -1;  // first of 2 x params.obstacle_capacity soft rows (stages 1..N), -1 if none
     int nu = 0, nc = 0, ns = 0;
@@ -83,6 +84,7 @@ class PhaseQp {
   int keepout_row(int i) const;            // keep-out / overshoot row, -1 if none
   int cone_row(int i) const;               // first of the 4 cone rows (soft or hard), -1 if none
   int velocity_row(int i) const;           // first of the 6 |v|_inf rows (docking), -1 if none
+  int stop_row(int i) const;               // the docking stop plane's soft row, -1 if none
   int obstacle_row(int i) const;           // first obstacle row, -1 if none
   int entry_row(int i) const;              // first of the entry cone's 2 rows, -1 if none
   bool entry_cone_active() const { return entry_active_; }  // in the last build

@@ -266,6 +266,8 @@ void bind_guidance(py::module_& m) {
       .def_readwrite("approach_setpoint_offset_m", &GuidanceParams::approach_setpoint_offset_m)
       .def_readwrite("docking_setpoint_offset_m", &GuidanceParams::docking_setpoint_offset_m,
                      "docking set point this far beyond the tightened docking cone's apex, inside r3")
+      .def_readwrite("docking_stop_penalty", &GuidanceParams::docking_stop_penalty,
+                     "penalty per metre past the docking stop plane through the set point (0: no plane)")
       .def_readwrite("rendezvous_switch_margin_m", &GuidanceParams::rendezvous_switch_margin_m)
       .def_readwrite("approach_switch_margin_m", &GuidanceParams::approach_switch_margin_m)
       .def_readwrite("keepout_rate_cap_factor", &GuidanceParams::keepout_rate_cap_factor)
@@ -443,6 +445,7 @@ void bind_guidance(py::module_& m) {
       .def("keepout_row", &PhaseQp::keepout_row, py::arg("stage"))
       .def("cone_row", &PhaseQp::cone_row, py::arg("stage"))
       .def("velocity_row", &PhaseQp::velocity_row, py::arg("stage"))
+      .def("stop_row", &PhaseQp::stop_row, py::arg("stage"))
       .def("entry_row", &PhaseQp::entry_row, py::arg("stage"))
       .def("set_holding_radius", &PhaseQp::set_holding_radius, py::arg("radius_m"))
       .def_property_readonly("entry_cone_active", &PhaseQp::entry_cone_active);

@@ -14,9 +14,8 @@ PHASES = ("rendezvous", "approach", "docking")
 PHASE_SCALARS = ("lambda", "los_half_angle_deg", "u_max_mps")  # besides N and Ts_s
 GLOBAL_SCALARS = ("orbit_altitude_m", "keepout_radius_m", "approach_stop_m", "dock_tolerance_m", "v_max_mps",
                   "rendezvous_setpoint_offset_m", "approach_setpoint_offset_m", "docking_setpoint_offset_m",
-                  "rendezvous_switch_margin_m",
-                  "approach_switch_margin_m", "keepout_rate_cap_factor", "port_body_x_m", "port_body_y_m",
-                  "port_body_z_m")
+                  "docking_stop_penalty", "rendezvous_switch_margin_m", "approach_switch_margin_m",
+                  "keepout_rate_cap_factor", "port_body_x_m", "port_body_y_m", "port_body_z_m")
 SOLVER_MODES = ("converged", "fixed_barrier")
 
 

@@ -129,7 +129,29 @@ TEST_CASE("docking: hard pyramid with its apex at the port, and |v|_inf rows") {
     CHECK(b.qp().d[i].segment<6>(v).isConstant(p.v_max_mps));
     // The set point: on the axis, docking_setpoint_offset_m beyond the apex (no margins: the port).
     CHECK((b.reference()[i].head<3>() - (port + p.docking_setpoint_offset_m * axis)).norm() < 1e-12);
+    // The stop plane: normal to the axis through the set point, no nearer the port than it; soft, linear.
+    const int s = b.stop_row(i);
+    REQUIRE(s == v + 6);
+    CHECK((b.qp().C[i].block<1, 3>(s, 0).transpose() + axis).norm() < 1e-12);
+    CHECK(b.qp().C[i].block<1, 3>(s, 3).isZero(0.0));
+    CHECK(std::abs(b.qp().C[i].block<1, 3>(s, 0).dot(b.reference()[i].head<3>()) - b.qp().d[i](s)) < 1e-12);
+    CHECK((b.qp().C[i].block<1, 3>(s, 0).dot(port + 0.9 * p.docking_setpoint_offset_m * axis) - b.qp().d[i](s)) > 0.0);
+    CHECK(soft_penalty(b.qp(), i, s) == p.docking_stop_penalty);
   }
+  CHECK(b.stop_row(0) == -1);
+}
+
+TEST_CASE("docking: docking_stop_penalty = 0 leaves the dissertation's QP, with no stop plane") {
+  GuidanceParams p;
+  p.docking_stop_penalty = 0.0;
+  PhaseQp b(Phase::Docking, p);
+  for (int i = 0; i <= b.N(); ++i) {
+    CHECK(b.stop_row(i) == -1);
+    CHECK(b.dims().nc[i] == (i == 0 ? 6 : i < b.N() ? 16 : 10));
+    CHECK(b.qp().dims.soft_rows(i) == 0);
+  }
+  p.docking_stop_penalty = -1.0;
+  CHECK(!p.validate().empty());
 }
 
 TEST_CASE("recovery QP: exactly the hard state rows become soft, the inputs stay the 3 delta-v") {
@@ -146,6 +168,11 @@ TEST_CASE("recovery QP: exactly the hard state rows become soft, the inputs stay
     for (int k = 0; k < 6; ++k)
       CHECK(soft_penalty(b.qp(), i, b.velocity_row(i) + k) == p.recovery_speed_factor * p.recovery_weight);
     for (int k = 0; k < b.dims().ns[i]; ++k) {
+      if (b.qp().idxs[i][k] == b.stop_row(i)) {  // soft already, at its own penalty
+        CHECK(b.qp().zs[i](k) == p.docking_stop_penalty);
+        CHECK(b.qp().Zs[i](k) == 0.0);
+        continue;
+      }
       const bool speed = b.qp().idxs[i][k] >= b.velocity_row(i) && b.qp().idxs[i][k] < b.velocity_row(i) + 6;
       CHECK(b.qp().Zs[i](k) == (speed ? p.recovery_speed_factor : 1.0) * 2.0 * p.recovery_quadratic);
     }

@@ -160,11 +160,19 @@ bool attach(Slot& s, Phase p, const GuidanceParams& params, bool shadow, std::st
   }
   // Layout: the rows generate.py modelled, where our builder put them.
   const int* n = s.problem->sizes;
-  int keepout = 0, cone = 0, vel = 0;
+  int keepout = 0, cone = 0, vel = 0, stop = 0;
   for (int i = 1; i <= N; ++i) {
     const PhaseQp::StageLayout L = s.qp->stage(i);
     keepout += L.keepout_row >= 0;
     vel += L.vel_row >= 0;
+    if (L.stop_row >= 0) {
+      ++stop;
+      for (int j = 0; j < qp.dims.soft_rows(i); ++j)
+        if (qp.idxs[i][j] == L.stop_row && std::abs(qp.zs[i](j) - s.problem->stop_penalty) > 1e-12) {
+          error = std::string(kPhaseName[k]) + ": the stop plane's penalty differs from the generated QP's";
+          return false;
+        }
+    }
     if (L.cone_row >= 0) {
       s.cone_stages.push_back(i);
       ++cone;
@@ -181,6 +189,7 @@ bool attach(Slot& s, Phase p, const GuidanceParams& params, bool shadow, std::st
     }
   }
   if (n[RVD_CPG_KEEPOUT_D] != keepout || n[RVD_CPG_CONE_D] != 4 * cone || n[RVD_CPG_VEL_D] != 6 * vel ||
+      n[RVD_CPG_STOP_D] != stop ||
       n[RVD_CPG_Q] != 6 * (N + 1) || n[RVD_CPG_UBOX] != 6 * N) {
     error = std::string(kPhaseName[k]) + ": our QP's rows are not those of the generated QP (regenerate)";
     return false;
@@ -234,7 +243,7 @@ void load(Slot& s, bool with_dynamics) {
   for (int r = 0; r < 6; ++r) v[RVD_CPG_X0][r] = s.qp->x0()(r);
   for (int i = 0; i <= N; ++i)
     for (int r = 0; r < 6; ++r) v[RVD_CPG_Q][6 * i + r] = qp.q[i](r);
-  int keep = 0, speed = 0, vel = 0, cone = 0;
+  int keep = 0, speed = 0, vel = 0, cone = 0, stop = 0;
   for (int i = 0; i <= N; ++i) {
     const PhaseQp::StageLayout L = s.qp->stage(i);
     if (L.box_row >= 0)
@@ -258,6 +267,10 @@ void load(Slot& s, bool with_dynamics) {
     if (L.vel_row >= 0) {
       for (int r = 0; r < 6; ++r) v[RVD_CPG_VEL_D][6 * vel + r] = qp.d[i](L.vel_row + r);
       ++vel;
+    }
+    if (L.stop_row >= 0) {
+      for (int c = 0; c < 3; ++c) v[RVD_CPG_STOP_C][3 * stop + c] = qp.C[i](L.stop_row, c);
+      v[RVD_CPG_STOP_D][stop++] = qp.d[i](L.stop_row);
     }
   }
   if (with_dynamics) {

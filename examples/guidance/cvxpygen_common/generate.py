@@ -18,8 +18,9 @@ dynamics A and B (set once: they follow the orbit, the period and the burn model
 cost q_i = -2 Q x_ref,i, the input box of every stage (it follows the thrusters' estimated force), and
 every state row whose normal turns with the chaser or the target: the rotating keep-out hyperplanes,
 the overshoot plane, the closing-speed row and the line-of-sight pyramids with their bounds. What is a
-constant (checked by the law against its own QP at create): the weights Q, Q_f, R and the soft rows'
-penalty lambda. Differences from our QP: none in the nominal QPs. The closing-speed rows of the
+constant (checked by the law against its own QP at create): the weights Q, Q_f, R, the soft rows'
+penalty lambda and the docking stop plane's penalty (the plane itself, through the set point, is a
+parameter). Differences from our QP: none in the nominal QPs. The closing-speed rows of the
 approach and the rendezvous are always there (the law makes them 0 <= 1 when the run has no cap or
 braking curve); the recovery QPs, the 1-norm rendezvous
 and the obstacle rows are not generated (the law refuses those configurations, and on an infeasible QP
@@ -65,12 +66,13 @@ SETTINGS = {
 }
 # Parameter order of rvd_cpg.h (RVD_CPG_*); every problem lists all, absent ones with size 0.
 PARAM_NAMES = ("x0", "A", "B", "q", "ubox", "keepout_C", "keepout_d", "cone_C", "cone_d", "speed_C", "speed_d",
-               "vel_d")
+               "vel_d", "stop_C", "stop_d")
 
 
 def weights(phase: str, N: int) -> dict:
     """The weights our builder puts in this phase's QP (flight_sw.PhaseQp with the default parameters):
-    dissertation units, cost x'Qx + u'Ru (the OCP's 1/2 x'(2Q)x), terminal Q_f, soft penalty lambda."""
+    dissertation units, cost x'Qx + u'Ru (the OCP's 1/2 x'(2Q)x), terminal Q_f, soft penalty lambda, and the
+    docking stop plane's penalty (0: none)."""
     from rvd_pil import flight_sw
 
     p = flight_sw.GuidanceParams()
@@ -82,10 +84,14 @@ def weights(phase: str, N: int) -> dict:
     qp = flight_sw.build_phase_qp(p, ph, x, np.array([np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)]), np.zeros(3))
     Q, Qf = np.asarray(qp["Q"][0]) / 2, np.asarray(qp["Q"][N]) / 2
     R = np.asarray(qp["R"][0])[:3, :3] / 2
-    zs = sorted({float(v) for z in qp["zs"] for v in np.atleast_1d(z)})
-    if len(zs) > 1:
-        raise SystemExit(f"{phase} N={N}: soft rows with several penalties {zs}: not the nominal QP")
-    return {"Q": Q, "Qf": Qf, "R": R, "lambda": zs[0] if zs else 0.0}
+    layout = flight_sw.PhaseQp(ph, p)
+    zs, stop = set(), set()
+    for i, (rows, pen) in enumerate(zip(qp.get("idxs") or [], qp.get("zs") or [])):
+        for row, v in zip(np.atleast_1d(rows), np.atleast_1d(pen)):
+            (stop if row == layout.stop_row(i) else zs).add(float(v))
+    if len(zs) > 1 or len(stop) > 1:
+        raise SystemExit(f"{phase} N={N}: soft rows with several penalties {sorted(zs | stop)}: not the nominal QP")
+    return {"Q": Q, "Qf": Qf, "R": R, "lambda": min(zs, default=0.0), "stop": min(stop, default=0.0)}
 
 
 def model(phase: str, N: int, w: dict):
@@ -112,9 +118,9 @@ def model(phase: str, N: int, w: dict):
             cp.sum_squares(np.diag(Rs) @ U) + cp.sum(cp.multiply(q, X)))
     stages = N  # state rows on stages 1..N
 
-    def rows(name: str, height: int, part: slice, stage_cols, soft: bool):
+    def rows(name: str, height: int, part: slice, stage_cols, soft: bool, penalty: float | None = None):
         """height rows per stage on the position (or velocity) of the stages in stage_cols:
-        (C_row . X[part, i]) (- s) <= d, C and d parameters."""
+        (C_row . X[part, i]) (- s) <= d, C and d parameters; a soft row costs penalty (default lambda) per unit."""
         nonlocal cost
         n = len(stage_cols)
         P[f"{name}_C"] = cp.Parameter(3 * height * n, name=f"{name}_C")
@@ -125,7 +131,7 @@ def model(phase: str, N: int, w: dict):
         if soft:
             s = cp.Variable(height * n, name=f"{name}_s", nonneg=True)
             cons.append(lhs - s <= P[f"{name}_d"])
-            cost += w["lambda"] * cp.sum(s)
+            cost += (w["lambda"] if penalty is None else penalty) * cp.sum(s)
         else:
             cons.append(lhs <= P[f"{name}_d"])
 
@@ -145,6 +151,8 @@ def model(phase: str, N: int, w: dict):
         P["vel_d"] = cp.Parameter(6 * stages, name="vel_d")
         vd = cp.reshape(P["vel_d"], (6, stages), order="F")
         cons += [X[3:, 1:] <= vd[:3, :], -X[3:, 1:] <= vd[3:, :]]
+        if w["stop"] > 0:
+            rows("stop", 1, pos, all_stages, soft=True, penalty=w["stop"])
     prob = cp.Problem(cp.Minimize(cost), cons)
     if not prob.is_dcp(dpp=True):
         raise SystemExit(f"{phase} N={N}: the model is not DPP")
@@ -310,7 +318,7 @@ static const double rvd_glue_Qf[36] = {{{", ".join(repr(float(v)) for v in w["Qf
 static const double rvd_glue_R[9] = {{{", ".join(repr(float(v)) for v in w["R"].ravel())}}};
 
 const rvd_cpg_problem {pfx}rvd_problem = {{
-  {PHASES[phase]}, {N}, "{solver}", {{{", ".join(sizes)}}}, {w["lambda"]!r}, rvd_glue_Q, rvd_glue_Qf, rvd_glue_R,
+  {PHASES[phase]}, {N}, "{solver}", {{{", ".join(sizes)}}}, {w["lambda"]!r}, {w["stop"]!r}, rvd_glue_Q, rvd_glue_Qf, rvd_glue_R,
   rvd_glue_settings, rvd_glue_set_param, {pfx}cpg_solve, rvd_glue_status, rvd_glue_x, rvd_glue_u, rvd_glue_slack,
   rvd_glue_objective, rvd_glue_iterations, rvd_glue_primal_residual, rvd_glue_dual_residual
 }};

@@ -22,7 +22,8 @@ extern "C" {
 
 enum {
   RVD_CPG_X0, RVD_CPG_A, RVD_CPG_B, RVD_CPG_Q, RVD_CPG_UBOX, RVD_CPG_KEEPOUT_C, RVD_CPG_KEEPOUT_D,
-  RVD_CPG_CONE_C, RVD_CPG_CONE_D, RVD_CPG_SPEED_C, RVD_CPG_SPEED_D, RVD_CPG_VEL_D, RVD_CPG_N_PARAMS
+  RVD_CPG_CONE_C, RVD_CPG_CONE_D, RVD_CPG_SPEED_C, RVD_CPG_SPEED_D, RVD_CPG_VEL_D, RVD_CPG_STOP_C, RVD_CPG_STOP_D,
+  RVD_CPG_N_PARAMS
 };
 
 enum { RVD_CPG_SOLVED = 0, RVD_CPG_MAX_ITER = 1, RVD_CPG_INFEASIBLE = 2, RVD_CPG_NUMERICAL_ERROR = 4,
@@ -34,6 +35,7 @@ typedef struct rvd_cpg_problem {
   const char* solver;      /* "QOCOGEN" or "OSQP" */
   int sizes[RVD_CPG_N_PARAMS];
   double lambda;           /* soft rows' penalty per unit of violation */
+  double stop_penalty;     /* the docking stop plane's, per metre past it (0: no plane) */
   const double* Q;         /* 6x6, row-major, dissertation units (cost x'Qx) */
   const double* Qf;        /* 6x6 terminal */
   const double* R;         /* 3x3 */
