@@ -264,7 +264,11 @@ bool ActiveSet::same_rows(const OcpQp& qp, int i) const {
                      equal(zsc.data() + so[i], qp.zs[i], ns, 1) && equal(Zsc.data() + so[i], qp.Zs[i], ns, 1));
 }
 
-bool ActiveSet::same_pattern(Workspace& w, const OcpQp& qp, int i) {
+bool ActiveSet::same_d(const OcpQp& qp, int i) const {
+  return rows_valid && same_block(Dc, i, qp.D[i], dims.nc[i], nu[i]);
+}
+
+bool ActiveSet::same_pattern(Workspace& w, const OcpQp& qp, int i, bool d_same) {
   const int ns = so[i + 1] - so[i];
   if (ns > 0 && !(std::memcmp(idxc.data() + so[i], qp.idxs[i].data(), sizeof(int) * ns) == 0 &&
                   equal(zsc.data() + so[i], qp.zs[i], ns, 1) && equal(Zsc.data() + so[i], qp.Zs[i], ns, 1)))
@@ -272,18 +276,28 @@ bool ActiveSet::same_pattern(Workspace& w, const OcpQp& qp, int i) {
   const Matrix &C = qp.C[i], &D = qp.D[i];
   for (int j = 0, k = w.ro[i]; k < w.ro[i + 1]; ++j, ++k) {
     int t = w.ptr[k];  // (the kept entries of a row are in column order: inputs, then states)
-    for (int c = 0; c < nu[i]; ++c) {
-      if (t < w.mid[k] && w.col[t] == c)
-        w.val[t++] = D(j, c);  // a kept entry, zero now or not
-      else if (D(j, c) != 0.0)
-        return false;  // a nonzero the kept rows do not hold
+    bool changed = false;
+    if (d_same) {
+      t = w.mid[k];  // the kept D entries hold D's values already
+    } else {
+      for (int c = 0; c < nu[i]; ++c) {
+        if (t < w.mid[k] && w.col[t] == c) {
+          changed = changed || w.val[t] != D(j, c);
+          w.val[t++] = D(j, c);  // a kept entry, zero now or not
+        } else if (D(j, c) != 0.0) {
+          return false;  // a nonzero the kept rows do not hold
+        }
+      }
     }
     for (int c = 0; c < nx; ++c) {
-      if (t < w.ptr[k + 1] && w.col[t] == c)
+      if (t < w.ptr[k + 1] && w.col[t] == c) {
+        changed = changed || w.val[t] != C(j, c);
         w.val[t++] = C(j, c);
-      else if (C(j, c) != 0.0)
+      } else if (C(j, c) != 0.0) {
         return false;
+      }
     }
+    if (changed) row_norm(w, k);
   }
   return true;
 }
@@ -343,11 +357,13 @@ void ActiveSet::keep_rows(const Workspace& w, const OcpQp& qp) {
 }
 
 void ActiveSet::row_norms(const Workspace& w, int i) {
-  for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) {
-    const double sq = gram(w, k, k);
-    inv_norm[k] = sq > 0.0 ? 1.0 / std::sqrt(sq) : std::numeric_limits<double>::infinity();  // no input moves it: first
-    scan0[k] = scan_weight(k, 0);
-  }
+  for (int k = w.ro[i]; k < w.ro[i + 1]; ++k) row_norm(w, k);
+}
+
+void ActiveSet::row_norm(const Workspace& w, int k) {
+  const double sq = gram(w, k, k);
+  inv_norm[k] = sq > 0.0 ? 1.0 / std::sqrt(sq) : std::numeric_limits<double>::infinity();  // no input moves it: first
+  scan0[k] = scan_weight(k, 0);
 }
 
 double ActiveSet::gram(const Workspace& w, int r, int k) const {
@@ -520,7 +536,7 @@ bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
   // values in place.
   bool same = a.rows_valid, new_values = false;
   for (int i = 0; i <= a.N && same; ++i)
-    if (!a.stage_same[i] && (same = a.same_pattern(w, qp, i))) a.row_norms(w, i), new_values = true;
+    if (a.stage_same[i] != 1 && (same = a.same_pattern(w, qp, i, a.stage_same[i] == 2))) new_values = true;
   if (same && new_values) a.keep_copies(qp);
   if (!same) {
     info_.rows_compressed = true;

@@ -79,7 +79,7 @@ struct ActiveSet {
   StageCopies Cc, Dc;
   Array<double> zsc, Zsc;
   Array<int> idxc, so;
-  Array<signed char> stage_same;  // per solve: stage i's row data equal the copy
+  Array<signed char> stage_same;  // per solve: 1 stage i's row data equal the copy, 2 only its D does, 0 neither
   bool dyn_same = false;                // per solve: A, B, Q, R are the ones condensed
   Array<int> flags;              // b_tail, q_diag, r_diag of the condensed data (3 (N+1))
   // Per-solve refresh of kept rows (fast_mpc.cpp's prepare_rows does the same on all rows):
@@ -105,12 +105,15 @@ struct ActiveSet {
   bool same_data(const OcpQp& qp) const;
   // Stage i's C, D and soft-row data equal the copy kept with the rows.
   bool same_rows(const OcpQp& qp, int i) const;
+  // Stage i's D equals the copy kept with the rows (a turning target turns C only).
+  bool same_d(const OcpQp& qp, int i) const;
   // Stage i's nonzeros in C, D are among the entries of the rows kept (and its soft rows are the
   // same): their values (zeros included, where a kept entry is zero now) replace the kept ones in the
-  // workspace (the copies: keep_copies, once every stage is through). False (values partly
-  // written) otherwise. So rows kept with a pattern wider than a period's (a caller's structural
-  // fill, FastMpcSolver::setup) take that period as is.
-  bool same_pattern(Workspace& w, const OcpQp& qp, int i);
+  // workspace (the copies: keep_copies, once every stage is through), and each row whose values
+  // changed gets its norm again (row_norm). False (values partly written) otherwise. So rows kept
+  // with a pattern wider than a period's (a caller's structural fill, FastMpcSolver::setup) take
+  // that period as is. d_same: D equals its copy (same_d), so only C is read.
+  bool same_pattern(Workspace& w, const OcpQp& qp, int i, bool d_same);
   // Keep the rows the workspace holds now (after prepare_rows) with the QP's data they came from.
   void keep_rows(const Workspace& w, const OcpQp& qp);
   void keep_copies(const OcpQp& qp);  // the C, D and soft-row data part of it
@@ -118,6 +121,7 @@ struct ActiveSet {
   bool condense(const OcpQp& qp);
   // inv_norm and scan0 of stage i's rows (as the workspace compresses them) from P_ii; needs condensed.
   void row_norms(const Workspace& w, int i);
+  void row_norm(const Workspace& w, int k);  // one row's
   // m_r'm_k of two rows as the workspace compresses them, from P; needs condensed.
   double gram(const Workspace& w, int r, int k) const;
   // Row k's weight of g'z - d in the entering row's search in state st (0: at lam = 0, 1: in W,
