@@ -253,31 +253,34 @@ def test_one_solver_along_a_closed_loop(closed_loop_qps):
     stage unchanged must be those of the last QP, not of the last full preparation."""
     qps = closed_loop_qps[3][:12]
     first = qps[0]
-    solver = flight_sw.OcpSolver(first.nx, first.nu, first.nc, None, warm_start=False)
-    solver.setup(*first.args()[:-1])
+
+    def solver_for(qp):  # as the guidance keeps one: set up once, the QP's soft rows (the stop plane) soft
+        s = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, warm_start=False)
+        s.setup(*qp.args()[:-1], **qp.kw())
+        return s
+
+    def rows_copied(qp):  # the QP with its own copies of C, D, d
+        return dataclasses.replace(qp, C=[m.copy() for m in qp.C], D=[m.copy() for m in qp.D],
+                                   d=[v.copy() for v in qp.d])
+
+    solver = solver_for(first)
     assert any(not np.array_equal(a.C[1], b.C[1]) for a, b in zip(qps, qps[1:]))  # the rows do turn
-    reshaped = OcpQpData(*first.args()[:-1], first.x0, first.phase, first.Ts)
-    reshaped.C = [C.copy() for C in first.C]
+    reshaped = rows_copied(first)
     reshaped.C[2][0, 5] += 1e-3  # a nonzero where the cone row had none
-    bad = OcpQpData(*first.args()[:-1], first.x0, first.phase, first.Ts)
-    bad.C = [C.copy() for C in first.C]
+    bad = rows_copied(first)
     bad.C[2][0, 0] = np.nan
     # D is checked and taken in where it differs from the copy, with C turning as well: a NaN in an
     # input bound refused; an input bound scaled (the same half-space: the row's norm must follow).
     box = next(r for r in range(qps[1].D[1].shape[0]) if np.count_nonzero(qps[1].D[1][r]) == 1)
-    bad_d = OcpQpData(*qps[1].args()[:-1], qps[1].x0, qps[1].phase, qps[1].Ts)
-    bad_d.D = [D.copy() for D in qps[1].D]
+    bad_d = rows_copied(qps[1])
     bad_d.D[1][box][bad_d.D[1][box] != 0] = np.nan
-    scaled = OcpQpData(*qps[2].args()[:-1], qps[2].x0, qps[2].phase, qps[2].Ts)
-    scaled.D, scaled.d = [D.copy() for D in qps[2].D], [d.copy() for d in qps[2].d]
+    scaled = rows_copied(qps[2])
     scaled.D[1][box] *= 4.0
     scaled.d[1][box] *= 4.0
     # Every active row of a QP scaled by its own factor (the same half-spaces, other norms): the
     # entering row is picked by distance, so norms left stale would change the path.
-    probe = flight_sw.solve_ocp_qp(*qps[3].args(), tol=1e-8)
-    spread = OcpQpData(*qps[3].args()[:-1], qps[3].x0, qps[3].phase, qps[3].Ts)
-    spread.C, spread.D, spread.d = ([m.copy() for m in qps[3].C], [m.copy() for m in qps[3].D],
-                                    [v.copy() for v in qps[3].d])
+    probe = flight_sw.solve_ocp_qp(*qps[3].args(), **qps[3].kw(), tol=1e-8)
+    spread = rows_copied(qps[3])
     factor = 1.0
     for i, lam in enumerate(probe.lam):
         for r in np.flatnonzero(np.asarray(lam) > 0):
@@ -287,7 +290,7 @@ def test_one_solver_along_a_closed_loop(closed_loop_qps):
             spread.d[i][r] *= factor
     assert factor >= 100.0  # at least two active rows scaled
     for qp in qps[:6] + [qps[0], reshaped, bad, bad_d, scaled, spread] + qps[6:] + [qps[0]]:
-        res = solver.solve(*qp.args())
+        res = solver.solve(*qp.args(), **qp.kw())
         if qp is bad or qp is bad_d:
             assert res.status == "invalid_input"
             continue
@@ -295,9 +298,7 @@ def test_one_solver_along_a_closed_loop(closed_loop_qps):
         agrees(qp, res, reference(qp))
         # Values taken in place (row norms included) leave the solver where preparing every row
         # afresh does: the same row changes and the same answer, to the last bit.
-        fresh = flight_sw.OcpSolver(first.nx, first.nu, first.nc, None, warm_start=False)
-        fresh.setup(*qp.args()[:-1])
-        again = fresh.solve(*qp.args())
+        again = solver_for(qp).solve(*qp.args(), **qp.kw())
         assert again.active_set_changes == res.active_set_changes
         assert all(np.array_equal(a, b) for a, b in zip(again.u, res.u))
 

@@ -534,9 +534,11 @@ bool FastMpcSolver::prepare_active_set(const OcpQp& qp) {
   if (!a.dyn_same) a.condense(qp);  // on failure (H not positive definite) the solve goes to the interior point
   // A stage with new C, D values but the same nonzeros (a turning target's cone rows) takes the
   // values in place.
+  using StageData = detail::ActiveSet::StageData;
   bool same = a.rows_valid, new_values = false;
   for (int i = 0; i <= a.N && same; ++i)
-    if (a.stage_same[i] != 1 && (same = a.same_pattern(w, qp, i, a.stage_same[i] == 2))) new_values = true;
+    if (a.stage_same[i] != StageData::Same && (same = a.same_pattern(w, qp, i, a.stage_same[i] == StageData::SameD)))
+      new_values = true;
   if (same && new_values) a.keep_copies(qp);
   if (!same) {
     info_.rows_compressed = true;

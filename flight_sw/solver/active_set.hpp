@@ -79,7 +79,10 @@ struct ActiveSet {
   StageCopies Cc, Dc;
   Array<double> zsc, Zsc;
   Array<int> idxc, so;
-  Array<signed char> stage_same;  // per solve: 1 stage i's row data equal the copy, 2 only its D does, 0 neither
+  // Per solve, stage i's row data against the copy: all equal, only D equal (a turning target turns
+  // C only), or neither.
+  enum class StageData : signed char { Changed, SameD, Same };
+  Array<StageData> stage_same;
   bool dyn_same = false;                // per solve: A, B, Q, R are the ones condensed
   Array<int> flags;              // b_tail, q_diag, r_diag of the condensed data (3 (N+1))
   // Per-solve refresh of kept rows (fast_mpc.cpp's prepare_rows does the same on all rows):

@@ -80,13 +80,17 @@ bool FastMpcSolver::inputs_ok(const OcpQp& qp, const Vector& x0, detail::ActiveS
   const bool dyn = kept && (kept->dyn_same = kept->same_data(qp));
   for (int i = 0; i <= N; ++i) {
     const int m = dims_.nu[i], k = dims_.nc[i], ns = dims_.soft_rows(i);
-    // (A turning target turns C, not D: a D equal to the copy is known finite.)
-    const signed char same = !kept ? 0 : kept->same_rows(qp, i) ? 1 : kept->same_d(qp, i) ? 2 : 0;
+    // (A D equal to the copy is known finite, as is all of a stage equal to it.)
+    using StageData = detail::ActiveSet::StageData;
+    const StageData same = !kept                     ? StageData::Changed
+                           : kept->same_rows(qp, i) ? StageData::Same
+                           : kept->same_d(qp, i)    ? StageData::SameD
+                                                    : StageData::Changed;
     if (kept) kept->stage_same[i] = same;
-    const bool rows = same == 1;
+    const bool rows = same == StageData::Same;
     if (i < N && !(ok(qp.A[i], nx, nx, dyn) && ok(qp.B[i], nx, m, dyn) && ok(qp.b[i], nx, 1))) return false;
     if (!(ok(qp.Q[i], nx, nx, dyn) && ok(qp.q[i], nx, 1) && ok(qp.R[i], m, m, dyn) && ok(qp.r[i], m, 1) &&
-          ok(qp.C[i], k, nx, rows) && ok(qp.D[i], k, m, same != 0) && ok(qp.d[i], k, 1)))
+          ok(qp.C[i], k, nx, rows) && ok(qp.D[i], k, m, same != StageData::Changed) && ok(qp.d[i], k, 1)))
       return false;
     if (!any_soft || rows) continue;
     if (static_cast<int>(qp.idxs[i].size()) != ns || !ok(qp.zs[i], ns, 1) || !ok(qp.Zs[i], ns, 1)) return false;
