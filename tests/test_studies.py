@@ -494,3 +494,47 @@ def test_robustness_report_spreads_are_the_per_start_standard_deviations(tmp_pat
         assert np.isnan(overall["safety_violations"]) and overall["runs_with_safety_entry"] == 0
     for fig in ("mean_dv_tf.png", "spread.png", "success.png", "safety.png"):
         assert (res.out / "report" / fig).stat().st_size > 1000
+
+
+def test_an_in_process_run_hands_over_the_qp_each_step_solved(tmp_path):
+    """run_in_process(on_answer=...) calls back after each answered step with the flight application:
+    its built-in guidance's last QP of the step's phase, solved afresh (cold, by solve_ocp_qp), gives
+    the delta-v the step commanded (the record's dv_cmd), in every phase of a noisy run with the
+    nonlinear truth. A plug-in law has no built-in guidance to hand over: None."""
+    from rvd_pil import flight_sw
+    from rvd_pil.host_sim.scenario import load
+    from rvd_pil.studies.inprocess import run_in_process
+    from rvd_pil.studies.settings import GuidanceSettings
+
+    seen = []
+
+    def on_answer(step, app):
+        g = app.guidance
+        if g.phase in (flight_sw.Phase.Rendezvous, flight_sw.Phase.Approach, flight_sw.Phase.Docking):
+            seen.append((step, g.phase, g.last_qp(g.phase)))
+
+    summary, run_dir = run_in_process(load("case1_vbar"), GuidanceSettings.from_table({}), seed=2, truth="nonlinear",
+                                      run_dir=tmp_path / "run", on_answer=on_answer)
+    assert summary.docked
+    steps = pd.read_csv(run_dir / "steps.csv").set_index("step")
+    checked, next_step_alike = {}, 0
+    for step, phase, qp in seen:
+        row = steps.loc[step]
+        if row["guidance_status"] != 0:  # (a recovered step flew the recovery QP)
+            continue
+        res = flight_sw.solve_ocp_qp(**qp)
+        assert res.status == "solved", step
+        box = np.asarray(qp["d"][0])[:6]  # stage 0's input bounds, u <= box[:3] and -u <= box[3:]
+        dv = np.clip(np.asarray(res.u[0])[:3], -box[3:], box[:3])  # (as the guidance clips its plan)
+        flown = row[["dv_cmd_x_mps", "dv_cmd_y_mps", "dv_cmd_z_mps"]].to_numpy(float)
+        # the flight solved it warm, this solve is cold: both to the solver's tolerance (0.1 mm/s is
+        # under a third of the thrusters' minimum impulse bit)
+        assert np.abs(dv - flown).max() <= 1e-4, (step, dv, flown)
+        checked[phase] = checked.get(phase, 0) + 1
+        if step + 1 in steps.index:  # the check tells steps apart: the next step's delta-v is another
+            after = steps.loc[step + 1, ["dv_cmd_x_mps", "dv_cmd_y_mps", "dv_cmd_z_mps"]].to_numpy(float)
+            next_step_alike += int(np.abs(dv - after).max() <= 1e-4)
+    assert len(checked) == 3 and min(checked.values()) >= 10, checked
+    assert next_step_alike < 0.4 * sum(checked.values()), next_step_alike  # (coasting steps alike: 27 %)
+    app = flight_sw.FlightApp(["--run", "r"])
+    assert app.guidance is not None and app.guidance.phase == flight_sw.Phase.Rendezvous

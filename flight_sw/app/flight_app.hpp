@@ -25,6 +25,7 @@
 #include "flight_sw/app/pmu_counter.hpp"
 #include "flight_sw/app/solve_marker.hpp"
 #include "flight_sw/guidance/guidance.hpp"
+#include "flight_sw/guidance/plugin/mpc_law.hpp"
 #include "flight_sw/include/rvd_guidance.h"
 #include "flight_sw/link/messages.hpp"
 #include "flight_sw/link/zenoh_session.hpp"
@@ -190,6 +191,10 @@ class FlightApp {
   msg::Telemetry telemetry() const;
   msg::Hello hello(uint32_t session) const;
   const char* law_name() const { return law_->name ? law_->name : "unnamed"; }
+  // The built-in MPC's guidance (its last QPs and plans), or nullptr when a plug-in law flies.
+  const guidance::Guidance* built_in_guidance() const {
+    return law_ == guidance::mpc_law() ? guidance::mpc_law_guidance(law_state_) : nullptr;
+  }
   // Law faults so far, by kind (index LawFault), and the last one.
   const std::array<uint32_t, 9>& law_faults() const { return law_faults_; }
   LawFault last_law_fault() const { return last_fault_; }

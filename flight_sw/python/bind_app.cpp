@@ -108,6 +108,9 @@ void bind_app(py::module_& m) {
           py::arg("step"), "the encoded torque message of that step (before its cmd), else None")
       .def("hello", [](const FlightApp& app, uint32_t session) { return encoded(app.hello(session)); },
            py::arg("session") = 1, "the encoded hello message")
+      .def_property_readonly(
+          "guidance", [](const FlightApp& app) { return app.built_in_guidance(); }, py::return_value_policy::reference_internal,
+          "the built-in MPC's Guidance (last_qp, last_solution_u), None when a plug-in law flies")
       .def("telemetry", [](const FlightApp& app) { return encoded(app.telemetry()); },
            "the encoded telemetry message (per-phase solve-time log)");
 }

@@ -19,7 +19,7 @@ import queue
 import time
 import uuid
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 from rvd_pil.host_sim import messages as msg
 from rvd_pil.host_sim import pil as pil_module
@@ -39,8 +39,9 @@ class InProcessLink:
     by a flight_sw.FlightApp instead of a Zenoh session. Nothing travels, so nothing is sealed or can be
     forged: the counters of dropped messages stay zero."""
 
-    def __init__(self, app):
+    def __init__(self, app, on_answer: Optional[Callable[[int, object], None]] = None):
         self.app = app
+        self.on_answer = on_answer
         self.inbox: "queue.Queue[tuple[float, object]]" = queue.Queue()
         self.rejected: "queue.Queue[tuple[str, str, str]]" = queue.Queue()
         self.discarded = {k: 0 for k in server_module.DISCARD_KINDS}
@@ -69,6 +70,8 @@ class InProcessLink:
                     self._arrive(torque)
                 self._arrive(cmd)
                 self.last_step = message.step
+                if self.on_answer is not None:
+                    self.on_answer(message.step, self.app)
                 self.answered += 1
                 if self.answered % TELEMETRY_EVERY == 0:
                     self._arrive(self.app.telemetry())
@@ -103,8 +106,12 @@ def flight_options(sim: Simulator, settings: GuidanceSettings, run_id: str) -> l
 def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int = 0, truth: str = "cw",
                    sensor_noise: bool = True, thrust_noise: bool = True, impulsive: bool = False,
                    sim_options: Optional[dict] = None, config: Optional[ServerConfig] = None,
-                   run_dir: Path | str, meta: Optional[dict] = None) -> tuple[RunSummary, Path]:
-    """One run with the in-process flight application; the record has run_pil's layout and metadata."""
+                   run_dir: Path | str, meta: Optional[dict] = None,
+                   on_answer: Optional[Callable[[int, object], None]] = None) -> tuple[RunSummary, Path]:
+    """One run with the in-process flight application; the record has run_pil's layout and metadata.
+    on_answer(step, app), when given, runs after each step the flight answered, with the
+    flight_sw.FlightApp: app.guidance is the built-in MPC's Guidance (None for a plug-in law), so
+    app.guidance.last_qp(phase) is the QP that step solved (the QP sets of disturbed runs)."""
     from rvd_pil import flight_sw
 
     sim = Simulator(scenario, truth=truth, seed=seed, sensor_noise=sensor_noise, thrust_noise=thrust_noise,
@@ -123,7 +130,7 @@ def run_in_process(scenario: Scenario, settings: GuidanceSettings, *, seed: int 
         tuple(getattr(server_module, "PLANAR_COLUMNS", ())) if getattr(sim.scenario, "is_planar", False) else ())
     recorder = RunRecorder(run_dir, meta=record_meta, extra_columns=columns)
     server = PilServer(sim, cfg, record=recorder)
-    server.link = InProcessLink(app)
+    server.link = InProcessLink(app, on_answer)
     status = "failed"
     try:
         summary = server.run()

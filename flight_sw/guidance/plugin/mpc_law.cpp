@@ -55,6 +55,14 @@ void* create(const rvd_guidance_config* config, char* error, size_t error_size) 
   return nullptr;
 }
 
+}  // namespace
+
+const Guidance* mpc_law_guidance(const void* law_state) {
+  return law_state ? &static_cast<const MpcLaw*>(law_state)->guidance : nullptr;
+}
+
+namespace {
+
 void reset(void* law) { static_cast<MpcLaw*>(law)->guidance.reset(); }
 
 int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_output* out) {

@@ -7,6 +7,8 @@
 
 namespace rvd::guidance {
 
+class Guidance;
+
 // The law's table. create() takes its parameters from config->native (a GuidanceParams*, what the
 // flight executable's options made) when given, else the defaults of params.hpp with the vehicle,
 // orbit, per-phase period, horizon and delta-v limit and the geometry of the generic configuration.
@@ -21,5 +23,8 @@ rvd_guidance_config generic_config(const GuidanceParams& p);
 // instead). Margins are left at zero: nav::derive_margins() turns the configuration's error model into
 // them as the flight executable does. For laws that reuse the MPC's QPs or switching rules.
 GuidanceParams params_from_config(const rvd_guidance_config& config);
+
+// The guidance inside a state mpc_law()->create made (for inspection: its last QPs and plans).
+const Guidance* mpc_law_guidance(const void* law_state);
 
 }  // namespace rvd::guidance
