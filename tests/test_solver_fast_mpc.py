@@ -309,6 +309,44 @@ def test_qp_set_file_roundtrip(tmp_path):
         load_qp_set(tmp_path / "bad.npz")
 
 
+def test_the_rendezvous_cold_start_takes_the_input_bounds_at_their_slack():
+    """The rendezvous' first QP, from a kilometre or more out, solved cold: its rows' slacks start at
+    their residuals down to the rendezvous' floor of 0.1 (an input bound of 0.18 m/s at u = 0 holds
+    with slack 0.18, where the solver's default floor of 1 starts it at 1). On 40 random starts'
+    first QPs at N = 30: the same verdicts and answers as Clarabel either way, fewer iterations in all
+    and no more at most with the floor of 0.1; and the guidance's first step takes exactly the
+    iterations of that setting (it passes the floor to its solver)."""
+    from rvd_pil.host_sim.scenario import random_scenario
+    p = flight_sw.GuidanceParams()
+    p.rendezvous.N = 30
+    assert p.rendezvous.solver_cold_slack_floor == 0.1 and p.approach.solver_cold_slack_floor == 1.0
+    assert flight_sw.OcpSolver(6, [3, 0], [1, 1]).cold_slack_floor == 1.0  # the solver's own default
+    with pytest.raises(ValueError):
+        flight_sw.OcpSolver(6, [3, 0], [1, 1]).cold_slack_floor = 0.0
+    case = flight_sw.dissertation_case(1)
+    its = {1.0: [], 0.1: []}
+    for seed in range(300, 340):
+        sc = random_scenario(seed)
+        g = flight_sw.Guidance(p)
+        cmd = g.step(flight_sw.NavInput(0, 0.0, np.r_[sc.chaser.position_lvlh_m, sc.chaser.velocity_lvlh_mps],
+                                        case["q_lvlh_body"], case["omega_body_rad_s"]))
+        assert cmd.phase == flight_sw.Phase.Rendezvous
+        qp = from_dict(g.last_qp(flight_sw.Phase.Rendezvous), "rendezvous")
+        ref = solve_clarabel(qp)
+        for floor in its:
+            s = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode="interior_point",
+                                    tol=1e-8, warm_start=False)
+            s.cold_slack_floor = floor
+            res = s.solve(*qp.args(), **qp.kw())
+            assert res.status == ref.status, (seed, floor)
+            if ref.status == "solved":
+                assert res.objective == pytest.approx(ref.objective, rel=1e-6, abs=1e-6), (seed, floor)
+            its[floor].append(res.iterations)
+        if cmd.status == flight_sw.StepStatus.Ok:
+            assert cmd.iterations == its[0.1][-1], seed
+    assert sum(its[0.1]) < sum(its[1.0]) and max(its[0.1]) <= max(its[1.0]), its
+
+
 def test_the_noisy_loops_turn_a_spinning_target_as_the_guidance_predicts_it(monkeypatch):
     """bench.noisy_loops gives the guidance the target's attitude at each step's time: Case 3's as the
     host simulator's target model has it (a spin about body z = LVLH z), and as the C++ closed loop

@@ -220,7 +220,14 @@ void bind_guidance(py::module_& m) {
               throw py::value_error("solver_active_set_bulk must be in 0.." + std::to_string(solver::Settings::kMaxActiveSetBulk));
             p.solver.active_set_bulk = v;
           },
-          "cold active-set solves: violated rows that may join the most violated one per primal point (0: one at a time)");
+          "cold active-set solves: violated rows that may join the most violated one per primal point (0: one at a time)")
+      .def_property(
+          "solver_cold_slack_floor", [](const PhaseParams& p) { return p.solver.cold_slack_floor; },
+          [](PhaseParams& p, double v) {
+            if (!(v > 0.0)) throw py::value_error("solver_cold_slack_floor must be > 0");
+            p.solver.cold_slack_floor = v;
+          },
+          "the interior point's cold start: a hard row's least slack, in the row's units");
 
   py::class_<EstimateQuality>(m, "EstimateQuality", "How well the guidance knows its state and thrusters.")
       .def(py::init<>())

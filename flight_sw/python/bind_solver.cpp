@@ -360,5 +360,13 @@ gives status 'invalid_input'.)doc");
             s.solver().settings().separate_steps_above = v;
           },
           "relative primal residual above which the interior point's primal and dual variables take their own step "
-          "lengths (inf: one step length always)");
+          "lengths (inf: one step length always)")
+      .def_property(
+          "cold_slack_floor", [](PyOcpSolver& s) { return s.solver().settings().cold_slack_floor; },
+          [](PyOcpSolver& s, double v) {
+            if (!(v > 0.0)) throw py::value_error("cold_slack_floor must be > 0");
+            s.solver().settings().cold_slack_floor = v;
+          },
+          "the interior point's cold start: a hard row's least slack (its residual at the start when larger), in the "
+          "row's units");
 }

@@ -43,6 +43,7 @@ const char* Settings::invalid() const {
   if (max_correctors < 0 || max_refinements < 0 || stall_window < 1) return "counts must be >= 0 (stall_window >= 1)";
   if (!(certificate_reach > 0.0)) return "certificate_reach must be > 0";
   if (!(cold_complementarity > 0.0)) return "cold_complementarity must be > 0";
+  if (!(cold_slack_floor > 0.0)) return "cold_slack_floor must be > 0";
   if (!(separate_steps_above >= 0.0)) return "separate_steps_above must be >= 0 (inf: never)";
   if (!(ls_beta > 0.0 && ls_beta < 1.0 && ls_alpha > 0.0 && ls_alpha < 0.5)) return "need 0 < ls_alpha < 0.5, 0 < ls_beta < 1";
   if (!(newton_to_boundary > 0.0 && newton_to_boundary < 1.0)) return "newton_to_boundary must be in (0, 1)";
