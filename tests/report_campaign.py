@@ -18,9 +18,14 @@ PERIODS = {1: 30.0, 2: 20.0, 3: 5.0}  # the flight software's control periods pe
 TARGETS = {"rpi3": ("cortex-a53", 1.2e9, "aarch64"), "q7s": ("cortex-a9", 667e6, "armhf")}
 
 
-def solve_cycles(target: str, phase: int, k: int) -> tuple[float, float, float]:
+# random:1's rendezvous solves cost 1.6x case1_vbar's (a harder scenario): max / p50 over both runs
+# exceeds the one within either run
+SCALE = {("random:1", 1): 1.6}
+
+
+def solve_cycles(target: str, phase: int, k: int, scenario: str = "case1_vbar") -> tuple[float, float, float]:
     """(low, nominal, high) cycles of the k-th solve of a phase: a ramp, so max and p99 are known."""
-    nominal = 1e6 * phase * (1 + 0.01 * k)
+    nominal = 1e6 * phase * (1 + 0.01 * k) * SCALE.get((scenario, phase), 1.0)
     if target == "q7s" and phase == 3 and k == 7:
         nominal = 2.0e9  # 3.0 s at 667 MHz at the high end: over the 2.5 s docking deadline
     return 0.8 * nominal, nominal, 1.5 * nominal
@@ -36,7 +41,7 @@ def _run(out: Path, target: str, scenario: str, unsafe: bool, n_per_phase: int =
     t = 0.0
     for phase in (1, 2, 3):
         for k in range(n_per_phase):
-            lo, nom, hi = solve_cycles(target, phase, k)
+            lo, nom, hi = solve_cycles(target, phase, k, scenario)
             insns = nom / 1.5
             rows.append({"step": step, "t_s": t, "period_s": PERIODS[phase], "phase": phase, "solver_status": 0,
                          "cmd_period_s": PERIODS[phase], "solve_time_us": 5000.0 * phase + 10 * k,
@@ -73,11 +78,13 @@ def make(out: Path) -> dict:
     expected = {}
     for target, (_, clock, _) in TARGETS.items():
         for phase, name in ((1, "rendezvous"), (2, "approach"), (3, "docking")):
-            c = np.array([solve_cycles(target, phase, k) for k in range(20)] * 2)
+            c = np.array([solve_cycles(target, phase, k, sc) for sc in ("case1_vbar", "random:1") for k in range(20)])
             deadline_ms = 0.5 * PERIODS[phase] * 1e3
             worst_ms = c[:, 2].max() / clock * 1e3
             p99_ms = np.quantile(c[:, 1] / clock * 1e3, 0.99)
+            within = max(c[i:i + 20, 1].max() / np.median(c[i:i + 20, 1]) for i in (0, 20))
             expected[(target, name)] = {"deadline_ms": deadline_ms, "worst_ms": worst_ms, "p99_ms": p99_ms,
+                                        "max_over_p50": c[:, 1].max() / np.median(c[:, 1]), "run_max_over_p50": within,
                                         "margin_worst": deadline_ms / worst_ms, "margin_p99": deadline_ms / p99_ms,
                                         "misses": int((c[:, 2] / clock * 1e3 > deadline_ms).sum())}
     return expected

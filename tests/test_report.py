@@ -48,6 +48,28 @@ def test_verdict_rows_carry_the_margins_and_the_verdict(campaign):
     assert runs[["N_rendezvous", "N_approach", "N_docking"]].drop_duplicates().values.tolist() == [[30, 15, 12]]
 
 
+def test_max_over_median_is_shown_over_the_campaign_and_within_a_run(campaign):
+    """stats.csv and the details table give max / p50 of the estimated target time over all runs of a
+    phase and horizon and within each run (its worst run named): random:1's rendezvous solves cost
+    1.6x case1_vbar's, so there the ratio over both runs exceeds the one within either; elsewhere the
+    two runs are alike and so are the ratios."""
+    import pandas as pd
+
+    out, expected = campaign
+    stats = pd.read_csv(out / "stats.csv")
+    for (target, phase), exp in expected.items():
+        row = stats[(stats["target"] == target) & (stats["phase"] == phase)].iloc[0]
+        assert row["max_over_p50"] == pytest.approx(exp["max_over_p50"], rel=1e-9), (target, phase)
+        assert row["run_max_over_p50"] == pytest.approx(exp["run_max_over_p50"], rel=1e-9), (target, phase)
+        if phase == "rendezvous":
+            assert row["max_over_p50"] > 1.2 * row["run_max_over_p50"]
+            assert "random1" in row["run_max_over_p50_at"] or "case1_vbar" in row["run_max_over_p50_at"]
+        else:
+            assert row["max_over_p50"] == pytest.approx(row["run_max_over_p50"], rel=1e-9)
+    page = (out / "report.html").read_text()
+    assert "max / p50 within a run (worst run)" in page and "max / p50" in page
+
+
 def test_page_reads_as_a_verdict_first(campaign):
     out, _ = campaign
     page = (out / "report.html").read_text()
