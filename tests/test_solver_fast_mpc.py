@@ -351,7 +351,7 @@ def test_the_noisy_loops_turn_a_spinning_target_as_the_guidance_predicts_it(monk
     """bench.noisy_loops gives the guidance the target's attitude at each step's time: Case 3's as the
     host simulator's target model has it (a spin about body z = LVLH z), and as the C++ closed loop
     flies it (every step of run_closed_loop's Case 3)."""
-    from rvd_pil.bench.noisy_loops import attitude_after
+    from rvd_pil.host_sim.frames import quaternion_after
     given = []
     real_nav = flight_sw.NavInput
     monkeypatch.setattr(flight_sw, "NavInput", lambda k, t, x, q, w: given.append((t, np.array(q))) or real_nav(k, t, x, q, w))
@@ -360,23 +360,23 @@ def test_the_noisy_loops_turn_a_spinning_target_as_the_guidance_predicts_it(monk
     monkeypatch.undo()
     assert len(given) == 12 and given[-1][0] > 300.0
     for t, q in given:
-        assert np.abs(q - attitude_after(flight_sw.dissertation_case(3)["q_lvlh_body"],
+        assert np.abs(q - quaternion_after(flight_sw.dissertation_case(3)["q_lvlh_body"],
                                          flight_sw.dissertation_case(3)["omega_body_rad_s"], t)).max() == 0.0, t
     from rvd_pil.host_sim.frames import quaternion_about_z
     c = flight_sw.dissertation_case(3)
     rate = c["omega_body_rad_s"][2]
     assert rate > 0.0
     for t in (0.0, 30.0, 1234.5, 6000.0):
-        q = attitude_after(c["q_lvlh_body"], c["omega_body_rad_s"], t)
+        q = quaternion_after(c["q_lvlh_body"], c["omega_body_rad_s"], t)
         truth = quaternion_about_z(math.pi / 2 + rate * t)
         assert min(np.abs(q - truth).max(), np.abs(q + truth).max()) < 1e-12, t
     run = flight_sw.run_closed_loop(flight_sw.GuidanceParams(), c["x0"], c["q_lvlh_body"], c["omega_body_rad_s"])
     for t, q_flown in zip(np.asarray(run.t_s), np.asarray(run.q_lvlh_body)):
-        q = attitude_after(c["q_lvlh_body"], c["omega_body_rad_s"], t)
+        q = quaternion_after(c["q_lvlh_body"], c["omega_body_rad_s"], t)
         assert min(np.abs(q - q_flown).max(), np.abs(q + q_flown).max()) < 1e-9, t
     # a general axis: the turn is about the body axis (q (x) dq), not the LVLH one
     q0, w = np.array([0.9, 0.1, -0.3, 0.2]) / np.linalg.norm([0.9, 0.1, -0.3, 0.2]), np.array([0.01, -0.02, 0.005])
-    a, b = attitude_after(q0, w, 40.0), attitude_after(attitude_after(q0, w, 15.0), w, 25.0)
+    a, b = quaternion_after(q0, w, 40.0), quaternion_after(quaternion_after(q0, w, 15.0), w, 25.0)
     assert np.abs(a - b).max() < 1e-12
     v_body = w / np.linalg.norm(w)  # the rotation axis is fixed in the body: the same in LVLH before and after
     rot = lambda q, v: (lambda w_, u: v + 2 * w_ * np.cross(u, v) + 2 * np.cross(u, np.cross(u, v)))(q[0], q[1:])

@@ -118,10 +118,10 @@ Status FastMpcSolver::solve_converged(const OcpQp& qp, bool warm, int max_iter, 
       const bool soft = w.soft[k] > 0.0;
       const double viol = w.gz[k] - w.dv[k];
       if (!from_plan) {
-        // Slack as large as the row's residual (at least cold_slack_floor). A hard row's dual makes its product
-        // t lam the same on every row, cold_complementarity x the cost gradient's scale (a centred
-        // start); a soft row starts with its slack above the violation and its two duals splitting
-        // the penalty.
+        // Slack as large as the row's residual (at least cold_slack_floor). A hard row's dual makes
+        // its product t lam the same on every row, cold_complementarity x the cost gradient's scale
+        // (a centred start); a soft row starts with its slack above the violation and its two duals
+        // splitting the penalty.
         w.sig[k] = soft ? std::max(viol, 0.0) + 1.0 : 0.0;
         w.t[k] = std::max(std::abs(w.sig[k] - viol), S.cold_slack_floor);
         const double dual = w.zs[k] > 0.0 ? 0.5 * w.zs[k] : gs0;  // (a soft row's)

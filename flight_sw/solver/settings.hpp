@@ -73,14 +73,14 @@ struct Settings {
   double warm_step_to_boundary = 0.97;
   // Cold start: every hard row's slack t and dual lam start with t lam = cold_complementarity x the
   // cost gradient's scale, the same on every row. Duals at that scale whatever the slack (the start
-  // before) gave the rows far inside the largest products. On the closed-loop
-  // set's cold solves the centred start needs 5-15 % fewer iterations in every phase and horizon,
-  // on the first rendezvous solve of noisy closed loops 1-3.5 fewer (README, "Rendezvous: what the
-  // worst solves are"); 3 gains less, 10 and 100 about as much, 300 leaves an approach QP unsolved.
+  // before) gave the rows far inside the largest products. On the closed-loop set's cold solves the
+  // centred start needs 5-15 % fewer iterations in every phase and horizon, on the first rendezvous
+  // solve of noisy closed loops 1-3.5 fewer (README, "Rendezvous: what the worst solves are"); 3
+  // gains less, 10 and 100 about as much, 300 leaves an approach QP unsolved.
   double cold_complementarity = 30.0;
   // Cold start: a hard row's slack is its residual at the start, at least cold_slack_floor (in the
-  // row's units). 1 suits rows of order 1 or more: on random MPC QPs 0.3 and 0.1 take 1.3x and 2x
-  // the iterations. The rendezvous sets 0.1 (GuidanceParams::default_rendezvous).
+  // row's units). 1 suits rows of order 1 or more: on random MPC QPs 0.3 and 0.1 take 1.35x and
+  // 1.9x the iterations. The rendezvous sets 0.1 (GuidanceParams::default_rendezvous).
   double cold_slack_floor = 1.0;
   // Warm start: row slacks and duals pushed at least this far inside (relative to the row's size).
   double warm_push = 1e-2;

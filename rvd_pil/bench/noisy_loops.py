@@ -19,22 +19,9 @@ import argparse
 import numpy as np
 
 from rvd_pil import flight_sw as fsw
+from rvd_pil.host_sim.frames import quaternion_after
 
 HORIZON_SETS = ((15, 5, 5), (30, 15, 12), (45, 30, 30))
-
-
-def attitude_after(q_lvlh_body, omega_body_rad_s, t_s: float) -> np.ndarray:
-    """The target's attitude (w, x, y, z; LVLH <- body) t_s later under a constant body rate:
-    q (x) [cos(|w| t / 2), sin(|w| t / 2) w / |w|], as the guidance predicts it."""
-    q, w = np.asarray(q_lvlh_body, float), np.asarray(omega_body_rad_s, float)
-    rate = float(np.linalg.norm(w))
-    if rate * t_s == 0.0:
-        return q
-    h = 0.5 * rate * t_s
-    w2, v2 = np.cos(h), np.sin(h) * w / rate
-    w1, v1 = q[0], q[1:]
-    out = np.r_[w1 * w2 - v1 @ v2, w1 * v2 + w2 * v1 + np.cross(v1, v2)]
-    return out / np.linalg.norm(out)
 
 
 def noisy_loop(case: int, horizons: tuple[int, int, int], seed: int, noise_scale: float, thrust_error: float,
@@ -50,7 +37,7 @@ def noisy_loop(case: int, horizons: tuple[int, int, int], seed: int, noise_scale
     for k in range(max_steps):
         rho = np.linalg.norm(x[:3])
         seen = x + np.r_[rng.normal(0.0, noise_scale * (0.2 + 0.002 * rho), 3), rng.normal(0.0, noise_scale * 0.002, 3)]
-        q = attitude_after(c["q_lvlh_body"], c["omega_body_rad_s"], t)  # a spinning target turns as time goes on
+        q = quaternion_after(c["q_lvlh_body"], c["omega_body_rad_s"], t)  # a spinning target turns as time goes on
         cmd = g.step(fsw.NavInput(k, t, seen, q, c["omega_body_rad_s"]))
         if cmd.status == fsw.StepStatus.Docked:
             return

@@ -74,6 +74,20 @@ def quaternion_about_z(angle_rad: float) -> np.ndarray:
     return np.array([math.cos(0.5 * angle_rad), 0.0, 0.0, math.sin(0.5 * angle_rad)])
 
 
+def quaternion_after(q_wxyz, omega_body_rad_s, dt_s: float) -> np.ndarray:
+    """The attitude (w, x, y, z; outer <- body) dt_s later under a constant body rate:
+    q (x) [cos(|w| dt / 2), sin(|w| dt / 2) w / |w|], as the flight software predicts it."""
+    q, w = np.asarray(q_wxyz, dtype=float), np.asarray(omega_body_rad_s, dtype=float)
+    rate = float(np.linalg.norm(w))
+    if rate * dt_s == 0.0:
+        return q
+    h = 0.5 * rate * dt_s
+    w2, v2 = math.cos(h), math.sin(h) * w / rate
+    w1, v1 = q[0], q[1:]
+    out = np.r_[w1 * w2 - v1 @ v2, w1 * v2 + w2 * v1 + np.cross(v1, v2)]
+    return out / np.linalg.norm(out)
+
+
 def quaternion_to_matrix(q_wxyz) -> np.ndarray:
     """Rotation matrix of a unit quaternion (w, x, y, z): v_outer = R @ v_inner for q outer<-inner."""
     w, x, y, z = np.asarray(q_wxyz, dtype=float)

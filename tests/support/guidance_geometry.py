@@ -1,9 +1,11 @@
 """Geometry and dense reference QP solvers the guidance tests share, written from the equations here
-(quaternion rotation, the four-sided pyramid, the stacked QP), never taken from flight_sw."""
+(quaternion rotation, the four-sided pyramid, the stacked QP) or taken from the host simulator's
+frames (the attitude under a constant rate), never from flight_sw."""
 import math
 
 import numpy as np
 
+from rvd_pil.host_sim.frames import quaternion_after
 from support.qp_forms import expand_soft, from_dict
 
 DEG = math.pi / 180.0
@@ -20,17 +22,7 @@ def rotate(q, v):
     return np.asarray(v) + w * t + np.cross(u, t)
 
 
-def quat_after(q, omega_body, dt):
-    """q (x) exp(omega dt / 2): the attitude dt later under a constant body rate."""
-    rate = np.linalg.norm(omega_body)
-    if rate * dt == 0:
-        return np.asarray(q, float)
-    axis = np.asarray(omega_body) / rate
-    h = 0.5 * rate * dt
-    dq = np.r_[math.cos(h), math.sin(h) * axis]
-    w1, v1 = q[0], np.asarray(q[1:])
-    w2, v2 = dq[0], dq[1:]
-    return np.r_[w1 * w2 - v1 @ v2, w1 * v2 + w2 * v1 + np.cross(v1, v2)]
+quat_after = quaternion_after  # the attitude dt later under a constant body rate
 
 
 def in_pyramid(q, rel, half_angle_rad, tol=0.0):

@@ -55,14 +55,6 @@ void* create(const rvd_guidance_config* config, char* error, size_t error_size) 
   return nullptr;
 }
 
-}  // namespace
-
-const Guidance* mpc_law_guidance(const void* law_state) {
-  return law_state ? &static_cast<const MpcLaw*>(law_state)->guidance : nullptr;
-}
-
-namespace {
-
 void reset(void* law) { static_cast<MpcLaw*>(law)->guidance.reset(); }
 
 int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_output* out) {
@@ -145,6 +137,10 @@ int step(void* law, const rvd_nav_input* nav, double budget_s, rvd_guidance_outp
 void destroy(void* law) { delete static_cast<MpcLaw*>(law); }
 
 }  // namespace
+
+const Guidance* mpc_law_guidance(const void* law_state) {
+  return law_state ? &static_cast<const MpcLaw*>(law_state)->guidance : nullptr;
+}
 
 GuidanceParams params_from_config(const rvd_guidance_config& c) {
   if (c.native != nullptr) return *static_cast<const GuidanceParams*>(c.native);
