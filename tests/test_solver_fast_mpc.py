@@ -511,19 +511,41 @@ def test_soft_rows_equal_the_qp_with_explicit_slack_inputs(phase, N):
 
 
 def test_bench_tails_flies_each_phase_and_agrees_with_daqp(capsys):
-    """--tails on one horizon set and one seed: a block per phase with the flown, cold and DAQP rows,
-    every QP solved by flight_sw and DAQP to the same objective (bad 0), the flown maximum located, and
-    the repeated loop checked to fly the same commands (it raises otherwise). No speed is asserted."""
+    """--tails on one horizon set and one seed: a block per phase with the flown, cold, warm interior
+    point and DAQP rows, every QP solved by each to the reference's objective (bad 0), the flown maximum
+    located, and the repeated loop checked to fly the same commands (it raises otherwise). No speed is
+    asserted."""
     from rvd_pil.bench import solvers
     solvers.closed_loop_tails(seeds=1, repeats=2, horizon_sets=((15, 5, 5),))
     out = capsys.readouterr().out
     rows = [line.split() for line in out.splitlines() if line.split()[:1] in (["rendezvous"], ["approach"], ["docking"])]
-    assert [(r[0], r[1]) for r in rows[::4]] == [("rendezvous", "15"), ("approach", "5"), ("docking", "5")], out
-    for block in (rows[i:i + 4] for i in range(0, len(rows), 4)):
-        assert [" ".join(r[3:-5]) for r in block] == ["flown", "flight_sw cold", "daqp cold", "daqp warm"], out
+    assert [(r[0], r[1]) for r in rows[::5]] == [("rendezvous", "15"), ("approach", "5"), ("docking", "5")], out
+    for block in (rows[i:i + 5] for i in range(0, len(rows), 5)):
+        assert [" ".join(r[3:-5]) for r in block] == ["flown", "flight_sw cold", "interior point warm", "daqp cold",
+                                                      "daqp warm"], out
         assert len({r[2] for r in block}) == 1 and int(block[0][2]) > 10  # the same steps for every solver
         assert all(r[-1] == "0" for r in block[1:]), out  # flight_sw and DAQP agree on every QP
         for r in block:
             median, p99, peak = (float(v) for v in r[-5:-2])
             assert 0.0 < median <= p99 <= peak
     assert out.count("flown maximum: Case") == 3
+
+
+def test_bench_tails_charges_a_wrong_answer_to_its_solver_only(capsys, monkeypatch):
+    """Where two answers differ, the reference solver decides which is wrong: DAQP's objective made 1e-3
+    too high counts on DAQP cold in every block, and on none of the flight_sw rows."""
+    from rvd_pil.bench import solvers
+    run_daqp = solvers.run_daqp
+
+    def off(qp, forms):
+        obj, status, t_us, setup = run_daqp(qp, forms)
+        return obj + 1e-3 * max(1.0, abs(obj)), status, t_us, setup
+    monkeypatch.setattr(solvers, "run_daqp", off)
+    solvers.closed_loop_tails(seeds=1, repeats=1, horizon_sets=((15, 5, 5),))
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line.split()[:1] in (["rendezvous"], ["approach"], ["docking"])]
+    bad = {(r[0], " ".join(r[3:-5])): r[-1] for r in rows}
+    for phase in ("rendezvous", "approach", "docking"):
+        solves = next(r[2] for r in rows if r[0] == phase)
+        assert bad[(phase, "daqp cold")] == solves, out
+        assert bad[(phase, "flight_sw cold")] == bad[(phase, "interior point warm")] == "0", out

@@ -79,6 +79,7 @@ def test_the_emulated_solver_takes_the_native_solvers_path(measured, qps):
         native = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None,
                                      mode="interior_point" if qp.phase == "rendezvous" else "converged",
                                      tol=1e-8, warm_start=False)
+        native.cold_slack_floor = getattr(flight_sw.GuidanceParams(), qp.phase).solver_cold_slack_floor  # the tool's
         native.setup(*qp.args()[:-1], **qp.kw())
         r = native.solve(*qp.args(), **qp.kw())
         if qp.phase == "rendezvous":

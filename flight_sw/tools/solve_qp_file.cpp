@@ -10,8 +10,9 @@
 // converged mode's own choice), int32 nu[N+1], nc[N+1], ns[N+1]; per stage i < N the doubles A_i, B_i
 // (column-major), b_i; per stage i <= N Q_i, R_i, q_i, r_i, C_i, D_i, d_i; per stage the int32 idxs_i
 // and the doubles zs_i, Zs_i; x0.
-// Per QP, as the host benchmark: the solver's settings (tol 1e-8, cold) and setup() (the condensing,
-// once per phase in the flight) before the marker, solve() inside it.
+// Per QP, as the host benchmark: the solver's settings (tol 1e-8, cold; the interior point with the
+// guidance's rendezvous cold start) and setup() (the condensing, once per phase in the flight) before
+// the marker, solve() inside it.
 // Prints per QP: "qp K status S changes C iterations I u v v v ..." (the inputs of stages 0..N).
 #include <cstdint>
 #include <cstdio>
@@ -21,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "flight_sw/guidance/params.hpp"
 #include "flight_sw/solver/elapsed.hpp"
 #include "flight_sw/solver/fast_mpc.hpp"
 
@@ -102,7 +104,10 @@ int main(int argc, char** argv) {
       s.tol = 1e-8;
       s.max_iter = 100;
       s.warm_start = false;
-      if (interior_point) s.active_set_max_inputs = 0;
+      if (interior_point) {  // the rendezvous' cold start as the guidance sets it (the host benchmark alike)
+        s.active_set_max_inputs = 0;
+        s.cold_slack_floor = rvd::guidance::GuidanceParams::default_rendezvous().solver.cold_slack_floor;
+      }
       slots.push_back(std::unique_ptr<Slot>(new Slot{dims, interior_point, OcpQp(dims), FastMpcSolver(dims, s), Vector(dims.nx)}));
       slot = slots.back().get();
     }
