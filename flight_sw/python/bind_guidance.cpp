@@ -416,8 +416,8 @@ void bind_guidance(py::module_& m) {
       .def(
           "last_solution_u",
           [](const Guidance& g, Phase p) { return g.solver(active_phase(p)).u(); }, py::arg("phase"),
-          "inputs of the phase solver's last solve (delta-v then slacks per stage; already shifted one stage "
-          "for the next warm start when that solve was used)");
+          "the delta-v inputs [m/s] per stage of the phase solver's last solve, as it answered (its warm start "
+          "shifts a copy of its own)");
 
   py::class_<PhaseQp>(m, "PhaseQp", "Builder of one phase QP (allocates once; build() refills).")
       .def(py::init([](Phase phase, const GuidanceParams& p, bool recovery) {
