@@ -28,7 +28,8 @@ void put_named(rvd_guidance_output* out, const char (&name)[L], double value) {
 }
 
 uint8_t solver_status_code(const Command& c) {
-  return solver_status_reported(c.solved, c.solver.status) ? static_cast<uint8_t>(c.solver.status) : RVD_SOLVER_NONE;
+  return solver_status_reported(c.solved, c.solver.status) ? static_cast<uint8_t>(c.solver.status)
+                                                           : static_cast<uint8_t>(RVD_SOLVER_NONE);
 }
 
 // The law's state: the three-phase guidance, and the chaser's attitude controller where the truth has
