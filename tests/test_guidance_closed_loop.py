@@ -9,8 +9,9 @@ import pytest
 from scipy.linalg import expm
 
 from rvd_pil import flight_sw as fsw
+from rvd_pil.host_sim.frames import quaternion_after
 from support.cw_reference import cw_a
-from support.guidance_geometry import DEG, in_pyramid, quat_after, rotate, solve_clarabel
+from support.guidance_geometry import DEG, in_pyramid, rotate, solve_clarabel
 
 # The dissertation's tables 3.3-3.5: (delta-v, time) per phase.
 DISSERTATION = {1: ((10.24, 1169), (2.84, 260), (0.20, 315)),
@@ -48,7 +49,7 @@ def test_the_log_is_the_cw_plant(runs, k):
         np.testing.assert_allclose(r.x[i + 1], x_next, rtol=1e-10, atol=1e-9)
         assert r.t_s[i + 1] == pytest.approx(r.t_s[i] + r.period_s[i])
     for i in range(0, r.steps, 7):
-        np.testing.assert_allclose(np.abs(r.q_lvlh_body[i] @ quat_after(c["q_lvlh_body"], c["omega_body_rad_s"], r.t_s[i])), 1.0, atol=1e-12)
+        np.testing.assert_allclose(np.abs(r.q_lvlh_body[i] @ quaternion_after(c["q_lvlh_body"], c["omega_body_rad_s"], r.t_s[i])), 1.0, atol=1e-12)
 
 
 @pytest.mark.parametrize("k", [1, 2, 3])
@@ -86,7 +87,7 @@ def test_never_inside_the_keepout_sphere_outside_the_cone(runs, k):
         x = np.r_[r.x[i, :3], r.x[i, 3:] + r.dv_alloc_mps[i]]
         for s in range(int(r.period_s[i])):
             if np.linalg.norm(x[:3]) < r1:
-                q = quat_after(c["q_lvlh_body"], c["omega_body_rad_s"], r.t_s[i] + s)
+                q = quaternion_after(c["q_lvlh_body"], c["omega_body_rad_s"], r.t_s[i] + s)
                 b = rotate(np.r_[q[0], -q[1:]], x[:3])
                 worst = max(worst, abs(b[1]) * math.cos(half) - b[0] * math.sin(half),
                             abs(b[2]) * math.cos(half) - b[0] * math.sin(half))

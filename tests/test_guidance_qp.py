@@ -8,7 +8,8 @@ import pytest
 
 from rvd_pil import flight_sw as fsw
 from rvd_pil.bench.noisy_loops import noisy_loop
-from support.guidance_geometry import DEG, RBAR, VBAR, in_pyramid, quat_after, rotate, solve_clarabel, solve_proxsuite
+from rvd_pil.host_sim.frames import quaternion_after
+from support.guidance_geometry import DEG, RBAR, VBAR, in_pyramid, rotate, solve_clarabel, solve_proxsuite
 from support.qp_forms import from_dict
 
 # ---------------------------------------------------------------- the QPs checked
@@ -114,7 +115,7 @@ def test_keepout_normals_unit_and_turning_at_most_n_ts_per_step_towards_the_axis
         assert max(steps) <= n_ts + 1e-12
         assert max(steps) - min(steps) < 1e-9  # equal steps
         # The normals turn in one plane (about one axis), towards the cone axis at t_N.
-        axis_N = rotate(quat_after(q, w, b.N * b.Ts_s), [1.0, 0, 0])
+        axis_N = rotate(quaternion_after(q, w, b.N * b.Ts_s), [1.0, 0, 0])
         angle_to_axis = [math.acos(np.clip(v @ axis_N, -1, 1)) for v in normals]
         if b.keepout_natural_way:
             assert b.keepout_rotation_axis[2] < 0  # natural relative motion circulates about -z
@@ -159,7 +160,7 @@ def test_cone_rows_contain_the_axis_and_cut_at_the_half_angle(phase, half_deg, q
     qp = b.build([5.0, -100.0, 3.0, 0, 0, 0], q, w)
     stages = [b.N] if phase == fsw.Phase.Rendezvous else range(1, b.N + 1)
     for i in stages:
-        qi = quat_after(q, w, i * b.Ts_s)
+        qi = quaternion_after(q, w, i * b.Ts_s)
         axis = rotate(qi, [1.0, 0, 0])
         apex = rotate(qi, np.asarray(p.port_body_m)) if phase == fsw.Phase.Docking else np.zeros(3)
         r0 = b.cone_row(i)
@@ -183,7 +184,7 @@ def test_docking_tracks_the_rotating_port_and_bounds_velocity():
     qp = b.build([1.0, -25, 0.0, 0.06, 0.05, 0], VBAR, SPIN)
     ref = np.asarray(b.reference)
     for i in range(b.N + 1):
-        qi = quat_after(VBAR, SPIN, i * b.Ts_s)
+        qi = quaternion_after(VBAR, SPIN, i * b.Ts_s)
         aim = rotate(qi, [0.5 + p.docking_setpoint_offset_m, 0, 0])  # no margins: the cone's apex is the port
         np.testing.assert_allclose(ref[i, :3], aim, atol=1e-12)
         np.testing.assert_allclose(ref[i, 3:], np.cross(rotate(VBAR, SPIN), aim), atol=1e-12)

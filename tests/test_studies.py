@@ -500,7 +500,8 @@ def test_an_in_process_run_hands_over_the_qp_each_step_solved(tmp_path):
     """run_in_process(on_answer=...) calls back after each answered step with the flight application:
     its built-in guidance's last QP of the step's phase, solved afresh (cold, by solve_ocp_qp), gives
     the delta-v the step commanded (the record's dv_cmd), in every phase of a noisy run with the
-    nonlinear truth. A plug-in law has no built-in guidance to hand over: None."""
+    nonlinear truth. The application flies the built-in MPC from its start: its guidance is there before
+    the first step."""
     from rvd_pil import flight_sw
     from rvd_pil.host_sim.scenario import load
     from rvd_pil.studies.inprocess import run_in_process

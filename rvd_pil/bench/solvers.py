@@ -93,16 +93,23 @@ def before_timed_solve(forms: dict) -> None:
         hook()
 
 
-def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
+def flight_sw_solver(qp: OcpQpData, mode: str, warm_start: bool):
+    """flight_sw's solver for qp's shape at tol 1e-8, with the interior point's cold start as the
+    guidance sets it for qp's phase."""
     from rvd_pil import flight_sw
+    solver = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode=mode, tol=1e-8,
+                                 warm_start=warm_start)
+    if qp.phase in PHASES:
+        solver.cold_slack_floor = getattr(flight_sw.GuidanceParams(), qp.phase).solver_cold_slack_floor
+    return solver
+
+
+def run_flight_sw(qp: OcpQpData, forms: dict, mode: str = "converged"):
     if mode == "converged" and qp.phase == "rendezvous":
         mode = "interior_point"  # as the guidance flies it (PhaseParams of the rendezvous)
     key = ("flight_sw", mode)
     if key not in forms:
-        solver = forms[key] = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None, mode=mode, tol=1e-8,
-                                                  warm_start=False)
-        if qp.phase in PHASES:  # the interior point's cold start as the guidance sets it for the phase
-            solver.cold_slack_floor = getattr(flight_sw.GuidanceParams(), qp.phase).solver_cold_slack_floor
+        solver = forms[key] = flight_sw_solver(qp, mode, warm_start=False)
         # Condensing A, B, Q, R (fixed per phase: done once when the guidance is built), as DAQP's setup.
         t0 = time.perf_counter()
         solver.setup(*qp.args()[:-1], **qp.kw())
@@ -451,10 +458,8 @@ def closed_loop_tails(seeds: int = 2, noise_scale: float = 0.02, thrust_error: f
     with the active rows, here in approach and docking too. Each answer is checked: against flight_sw
     cold's objective, and where one differs, against the reference solver's (`reference`).
     horizon_sets: default bench.noisy_loops'."""
-    from rvd_pil import flight_sw
     from rvd_pil.bench.noisy_loops import HORIZON_SETS
     solvers = ("flown", "flight_sw cold", "interior point warm", "daqp cold", "daqp warm")
-    defaults = flight_sw.GuidanceParams()
     times = defaultdict(lambda: defaultdict(list))  # (phase, N) -> solver -> least time per step
     where = defaultdict(list)                       # (phase, N) -> (case, seed, step) per step
     bad = defaultdict(lambda: defaultdict(int))     # (phase, N) -> solver -> not solved / objective off
@@ -482,10 +487,8 @@ def closed_loop_tails(seeds: int = 2, noise_scale: float = 0.02, thrust_error: f
                         obj, status, t_us, _setup = run_daqp(qp, forms)
                         least["daqp cold"] = min(least["daqp cold"], t_us)
                         answers.setdefault("daqp cold", (obj, status == "solved"))
-                        if (ph, rep) not in ipm:  # the phase's settings as the guidance flies them
-                            ipm[(ph, rep)] = flight_sw.OcpSolver(qp.nx, qp.nu, qp.nc, qp.ns if qp.idxs else None,
-                                                                 mode="interior_point", tol=1e-8, warm_start=True)
-                            ipm[(ph, rep)].cold_slack_floor = getattr(defaults, qp.phase).solver_cold_slack_floor
+                        if (ph, rep) not in ipm:
+                            ipm[(ph, rep)] = flight_sw_solver(qp, "interior_point", warm_start=True)
                         r = ipm[(ph, rep)].solve(*qp.args(), **qp.kw())
                         ipm[(ph, rep)].shift_warm_start()
                         least["interior point warm"] = min(least["interior point warm"], r.solve_time_us)

@@ -1,11 +1,10 @@
 """Geometry and dense reference QP solvers the guidance tests share, written from the equations here
-(quaternion rotation, the four-sided pyramid, the stacked QP) or taken from the host simulator's
-frames (the attitude under a constant rate), never from flight_sw."""
+(quaternion rotation, the four-sided pyramid, the stacked QP), never taken from flight_sw. (The
+attitude under a constant rate is the host simulator's: rvd_pil.host_sim.frames.quaternion_after.)"""
 import math
 
 import numpy as np
 
-from rvd_pil.host_sim.frames import quaternion_after
 from support.qp_forms import expand_soft, from_dict
 
 DEG = math.pi / 180.0
@@ -20,9 +19,6 @@ def rotate(q, v):
     w, u = q[0], np.asarray(q[1:])
     t = 2.0 * np.cross(u, v)
     return np.asarray(v) + w * t + np.cross(u, t)
-
-
-quat_after = quaternion_after  # the attitude dt later under a constant body rate
 
 
 def in_pyramid(q, rel, half_angle_rad, tol=0.0):
